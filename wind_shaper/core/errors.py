@@ -1,0 +1,21 @@
+"""Errors of the pure core. Each message says what was wrong and what to do."""
+
+
+class WindShaperError(Exception):
+    """Base class of every error wind_shaper raises on purpose."""
+
+
+class ConfigError(WindShaperError, ValueError):
+    """A configuration value is missing, malformed or out of range."""
+
+
+class TargetError(WindShaperError, ValueError):
+    """A target profile (expression, CSV or name) cannot be used."""
+
+
+class ModelFileError(WindShaperError, ValueError):
+    """A model file cannot be read or does not describe a valid model."""
+
+
+class SweepError(WindShaperError, ValueError):
+    """A sweep cannot be turned into a field estimate (too few samples, bad values)."""
