@@ -383,8 +383,9 @@ def term_from_dict(spec: Mapping, fans: FanArray) -> Term:
         raise ModelFileError(f'unknown model term kind {kind!r}; known kinds: {sorted(TERMS)}')
     try:
         return cls(fans, **spec)
-    except (TypeError, ConfigError) as exc:
-        raise ModelFileError(f'cannot build term {kind!r}: {exc}') from None
+    except (TypeError, ValueError) as exc:  # ConfigError is a ValueError too
+        raise ModelFileError(f'cannot build term {kind!r} from {spec}: {exc}; every parameter '
+                             f'must be a number or a list of numbers') from None
 
 
 def finite_difference_jacobian(term: Term, U, Z, step: float = 1e-6) -> np.ndarray:

@@ -1,0 +1,104 @@
+"""Session-level wiring shared by the CLI and the ROS nodes: config files -> tunnel, model,
+target, loop. No argument parsing here and no rclpy."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .core.calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
+from .core.config import ShapingConfig, default_config_dir, load_geometry, load_shaping, read_yaml
+from .core.geometry import TunnelGeometry
+from .core.loop import IterationRecord, ShapingLoop
+from .core.model import Term, paper_prior
+from .core.modelfile import load_model, save_model
+from .core.targets import Target, make_target
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Everything a run needs, read from one config folder."""
+
+    config_dir: Path
+    geometry: TunnelGeometry
+    shaping: ShapingConfig
+    sim_config: dict
+
+    @classmethod
+    def load(cls, config_dir=None, disabled: Sequence[str] = ()) -> 'Setup':
+        cdir = Path(config_dir) if config_dir else default_config_dir()
+        geometry = load_geometry(cdir / 'tunnel.yaml')
+        if disabled:
+            geometry = geometry.with_disabled(disabled)
+        sim_path = cdir / 'sim.yaml'
+        sim_cfg = read_yaml(sim_path).get('sim', {}) if sim_path.is_file() else {}
+        return cls(cdir, geometry, load_shaping(cdir / 'shaping.yaml'), sim_cfg)
+
+    @property
+    def model_path(self) -> Path:
+        return self.config_dir / self.shaping.model_file
+
+    def make_sim(self, seed: int | None = None, effects: Sequence = ()):
+        """The simulated tunnel configured by ``sim.yaml`` (seed and extra effects overridable)."""
+        from .sim import SimulatedTunnel, make_effect
+        cfg = dict(self.sim_config)
+        if seed is not None:
+            cfg['seed'] = seed
+        sim = SimulatedTunnel.from_config(self.geometry, cfg)
+        if effects:
+            extra = [make_effect(e) if isinstance(e, str) else e for e in effects]
+            sim = sim.with_effects(list(sim.effects) + extra)
+        return sim
+
+    def load_model(self, path=None) -> Term:
+        return load_model(path or self.model_path, self.geometry.fans)
+
+    def make_target(self, spec) -> Target:
+        fans = self.geometry.fans
+        return make_target(spec, fan_positions=fans.positions, fan_names=list(fans.names),
+                           key_points=self.geometry.key_points)
+
+
+def calibrate(tunnel, fans, plan: CalibrationPlan = CalibrationPlan()) -> ModelFit:
+    """Collect the paper's calibration batch on ``tunnel`` and fit the paper's prior to it."""
+    data = collect_calibration(tunnel, plan)
+    return fit_model(paper_prior(fans), data)
+
+
+def save_fit(path, fit: ModelFit, source: str) -> Path:
+    return save_model(path, fit.model, fitted_from=source, rmse_N=round(fit.rmse, 5),
+                      n_samples=fit.n, fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),
+                      parameters={k: {'value': round(v['value'], 6), 'std': round(v['std'], 6)}
+                                  for k, v in fit.summary()['parameters'].items()})
+
+
+def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, seed: int = 0,
+                 model: Term | None = None, u0=None, rule_overrides: dict | None = None,
+                 on_iteration: Callable[[IterationRecord], None] | None = None,
+                 sim=None) -> tuple[list[IterationRecord], Target]:
+    """Run Algorithm 1 in-process on the simulated tunnel, scored against its true field."""
+    sim = sim or setup.make_sim(seed=seed)
+    target = setup.make_target(target_spec)
+    kp = setup.geometry.key_points
+    rule = setup.shaping.make_rule(**(rule_overrides or {}))
+    loop = ShapingLoop(sim, model or setup.load_model(), target.values(kp), rule,
+                       setup.shaping.make_estimator(),
+                       u0=setup.shaping.u0 if u0 is None else u0,
+                       n_samples=setup.shaping.samples_per_sweep,
+                       truth=lambda U: sim.true_field(U, kp))
+    n = setup.shaping.iterations if iterations is None else iterations
+    return loop.run(n, on_iteration), target
+
+
+def format_iteration(rec: IterationRecord, names: Sequence[str]) -> str:
+    """One console line: iteration, errors [N RMSE], commands [%]."""
+    true = '' if rec.true_error is None else f' true {np.sqrt(rec.true_error):6.3f} N'
+    pwm = ' '.join(f'{n}={100 * u:4.1f}' for n, u in zip(names, rec.pwm))
+    lam = '' if rec.step_size is None else f' step {rec.step_size:.3f}'
+    return f'k={rec.k:2d}  RMSE est {np.sqrt(rec.error):6.3f} N{true}{lam}  PWM% {pwm}'
+
+
+__all__ = ['Setup', 'calibrate', 'save_fit', 'shape_on_sim', 'format_iteration']

@@ -1,0 +1,104 @@
+"""`wind-shaper` command line: a thin argument layer over ``wind_shaper.app``."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import WindShaperError
+
+
+def _common(p):
+    p.add_argument('--config', type=Path, default=None,
+                   help='config folder with tunnel.yaml, shaping.yaml, sim.yaml, model.yaml '
+                        '(default: the shipped one)')
+    p.add_argument('--disable', action='append', default=[], metavar='FAN',
+                   help='run with this fan disabled (held at 0); repeat for more')
+    p.add_argument('--seed', type=int, default=0, help='simulator seed (sweeps and noise)')
+
+
+def _cmd_shape(args) -> int:
+    from ..app import Setup, format_iteration, shape_on_sim
+    from ..report.run_report import write_report
+    if not args.sim:
+        print('wind-shaper shape runs in-process on the simulated tunnel only: add --sim. '
+              'For the rig, start the node graph (see README).', file=sys.stderr)
+        return 2
+    setup = Setup.load(args.config, args.disable)
+    model = setup.load_model(args.model) if args.model else None
+    names = setup.geometry.fans.names
+    rule = {'gain': args.gain} if args.gain is not None else None
+    print(f'target {args.target}; {setup.geometry.fans.n_fans} fans '
+          f'({", ".join(n for n, e in zip(names, setup.geometry.fans.enabled) if not e) or "none"} '
+          f'disabled); {len(setup.geometry.key_points)} key points')
+    t0 = time.perf_counter()
+    records, target = shape_on_sim(
+        setup, args.target, iterations=args.iterations, seed=args.seed, model=model,
+        rule_overrides=rule, on_iteration=lambda r: print(format_iteration(r, names), flush=True))
+    out = args.out or Path('reports') / time.strftime('shape-%Y%m%d-%H%M%S')
+    meta = {'target': target.describe(), 'target_spec': args.target, 'seed': args.seed,
+            'disabled': args.disable, 'model': repr(model or setup.load_model()),
+            'config_dir': str(setup.config_dir), 'update': dict(setup.shaping.update or {}),
+            'wall_time_s': round(time.perf_counter() - t0, 3)}
+    write_report(out, records, setup.geometry, meta, u_max=setup.shaping.u_max)
+    first, last = records[0], records[-1]
+    if first.true_error is not None:
+        print(f'true-field RMSE {np.sqrt(first.true_error):.3f} N -> {np.sqrt(last.true_error):.3f} N '
+              f'after {last.k} iterations')
+    print(f'report: {out}/ (run.json, field_maps.png, error.png, pwm.png)')
+    return 0
+
+
+def _cmd_calibrate(args) -> int:
+    from ..app import Setup, calibrate, save_fit
+    if not args.sim:
+        print('calibrate needs --sim here (on the rig the node graph collects the batch)', file=sys.stderr)
+        return 2
+    setup = Setup.load(args.config, args.disable)
+    fit = calibrate(setup.make_sim(seed=args.seed), setup.geometry.fans)
+    out = args.out or setup.model_path
+    save_fit(out, fit, source=f'simulated tunnel, seed {args.seed}')
+    print(f'fitted {fit.model!r}\nRMSE {fit.rmse:.4f} N on {fit.n} samples; written to {out}')
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='wind-shaper', description=__doc__.split('\n')[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    p = sub.add_parser('shape', help='run the online-learning loop (Algorithm 1)')
+    _common(p)
+    p.add_argument('--sim', action='store_true', help='use the built-in simulated tunnel')
+    p.add_argument('--target', default='parabolic',
+                   help='uniform[:F] | gaussian[@FAN] | parabolic | expr:<f(x,y)> | csv:<file>')
+    p.add_argument('--iterations', type=int, default=None, help='updates (default: shaping.yaml)')
+    p.add_argument('--gain', type=float, default=None, help='step gain (paper: 0.8)')
+    p.add_argument('--model', type=Path, default=None, help='model file (default: config/model.yaml)')
+    p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/shape-<time>)')
+    p.set_defaults(func=_cmd_shape)
+
+    p = sub.add_parser('calibrate', help='collect the calibration batch and fit the prior')
+    _common(p)
+    p.add_argument('--sim', action='store_true', help='calibrate on the simulated tunnel')
+    p.add_argument('--out', type=Path, default=None, help='model file to write (default: config/model.yaml)')
+    p.set_defaults(func=_cmd_calibrate)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except WindShaperError as exc:
+        print(f'wind-shaper: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('wind-shaper: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
