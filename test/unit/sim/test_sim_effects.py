@@ -1,0 +1,184 @@
+"""Hidden effects: one registry test runs every effect through the same checks, then each
+effect is checked against the law its docstring states, then they compose."""
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from wind_shaper.sim import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, EffectError,
+                             ElongatedFootprint, JetInteraction, SimulatedTunnel, Swirl, TiltedFan,
+                             WallBoundaryLayer, WeakFan, make_effect)
+
+CONFIG = Path(__file__).resolve().parents[3] / 'config' / 'sim.yaml'
+
+
+def rot(a):
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+# -- registry ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize('name', sorted(HIDDEN_EFFECTS))
+def test_every_effect_builds_round_trips_and_changes_the_field(name, rig, tunnel):
+    effect = make_effect(name)
+    assert type(effect).__name__ in repr(effect) and effect.name == name
+    assert make_effect(**effect.spec()) == effect
+    assert make_effect(type(effect).__name__, **effect.truth()) == effect
+    for key, (lo, hi) in effect.bounds.items():
+        for bad in (lo - 1.0, hi + 1.0):
+            with pytest.raises(EffectError, match=key):
+                make_effect(name, **{**effect.truth(), key: bad})
+    pwm = np.array([0.3, 0.6, 0.3, 0.6, 0.3, 0.6, 0.1])  # CCW-heavy, so swirl shows too
+    changed = tunnel.with_effects([effect]).true_field(pwm, rig.key_points)
+    assert np.max(np.abs(changed - tunnel.true_field(pwm, rig.key_points))) > 0.02
+
+
+def test_make_effect_errors_name_the_choices():
+    with pytest.raises(EffectError, match='weak_fan'):
+        make_effect('gremlins')
+    with pytest.raises(EffectError, match='gain'):
+        make_effect('weak_fan', strength=0.5)
+
+
+def test_effect_on_an_unknown_fan_is_refused_at_construction(rig):
+    with pytest.raises(EffectError, match='XX9'):
+        SimulatedTunnel(rig, effects=[WeakFan(fan='XX9')])
+
+
+def test_config_examples_cover_every_effect():
+    examples = re.findall(r'#\s*-\s*(\{name:.*?\})', CONFIG.read_text())
+    names = {make_effect(**yaml.safe_load(e)).name for e in examples}
+    assert names == set(HIDDEN_EFFECTS)
+
+
+# -- each documented law ---------------------------------------------------------------------------
+def test_weak_fan_scales_its_footprint_by_gain(perfect, rig, lone):
+    weak = perfect.with_effects([WeakFan('HM2', 0.7)])
+    hub = rig.fans.positions[rig.fans.index('HM2')][None]
+    assert weak.true_field(lone('HM2'), hub)[0] == pytest.approx(0.7 * perfect.true_field(lone('HM2'), hub)[0])
+    pwm = np.full(7, 0.5)
+    drop = perfect.true_field(pwm, hub) - weak.true_field(pwm, hub)
+    assert drop[0] == pytest.approx(0.3 * perfect.true_field(lone('HM2'), hub)[0])
+    assert weak.thrust(pwm)[rig.fans.index('HM2')] == pytest.approx(0.7 * perfect.thrust(pwm)[3])
+
+
+def test_swirl_rotates_a_lone_ccw_fan_by_gain(perfect, rig, lone):
+    swirl = Swirl(gain=0.3)
+    sim = perfect.with_effects([swirl])
+    pwm = lone('HM1')  # CCW: theta = gain * (T - 0) / T = gain
+    assert swirl.angle(sim.thrust(pwm), rig) == pytest.approx(0.3)
+    pts = rig.key_points
+    assert np.allclose(sim.point_field(pwm, pts @ rot(0.3).T), perfect.point_field(pwm, pts))
+    hub = rig.fans.positions[rig.fans.index('HM1')]
+    a = np.arctan2(hub[1], hub[0]) + np.linspace(-0.6, 0.9, 1501)
+    ring = 0.25 * np.column_stack([np.cos(a), np.sin(a)])
+    peak = a[np.argmax(sim.true_field(pwm, ring))] - np.arctan2(hub[1], hub[0])
+    assert peak == pytest.approx(0.3, abs=0.01)  # plate-averaged peak also turns by theta
+    assert swirl.angle(np.array([1, 1, 1, 1, 1, 1, 0.0]), rig) == 0.0  # balanced thrust: no turn
+    assert Swirl(gain=0.3).angle(sim.thrust(lone('LM1')), rig) == pytest.approx(-0.3)
+
+
+def test_wall_boundary_layer_follows_its_law_and_spares_the_core(perfect, rig):
+    wall = perfect.with_effects([WallBoundaryLayer(thickness=0.06)])
+    pwm = np.full(7, 0.5)
+    pts = np.array([[0.0, 0.0], [0.2, 0.1], [0.0, 0.42], [0.3, -0.35], [0.0, 0.55]])
+    r = np.hypot(*pts.T)
+    law = np.where(r < 0.5, 1 - np.exp(-(0.5 - r) / 0.06), 0.0)
+    base = perfect.point_field(pwm, pts)
+    assert np.allclose(wall.point_field(pwm, pts), base * law)
+    kp = rig.key_points
+    ratio = wall.true_field(pwm, kp) / perfect.true_field(pwm, kp)
+    rk = np.hypot(*kp.T)
+    assert np.all(ratio[rk <= 0.15] > 0.97) and np.all(ratio[rk >= 0.38] < 0.9)
+    square = perfect.with_effects([WallBoundaryLayer(0.06, shape='square')])
+    assert square.point_field(pwm, np.array([[0.45, 0.45]]))[0] > 0  # inside a square wall
+
+
+def test_jet_interaction_fills_the_gap_between_neighbours(perfect, rig, lone):
+    effect = JetInteraction(strength=0.3)
+    assert len(effect.pairs(rig)) == 12  # 6 hexagon sides + 6 spokes to the centre
+    sim = perfect.with_effects([effect])
+    assert np.allclose(sim.true_field(lone('LM1'), rig.key_points),
+                       perfect.true_field(lone('LM1'), rig.key_points))  # one fan: no pair
+    pwm = np.zeros(7)
+    pwm[[0, 1]] = 0.5  # LM1 and HM1
+    t = perfect.thrust(pwm)
+    mid = 0.5 * (rig.fans.positions[0] + rig.fans.positions[1])[None]
+    extra = sim.point_field(pwm, mid) - perfect.point_field(pwm, mid)
+    assert extra[0] == pytest.approx(0.3 * np.sqrt(t[0] * t[1]))
+
+
+def test_dead_band_kills_small_commands_and_saturates(perfect, rig):
+    band = perfect.with_effects([DeadBand(threshold=0.12, saturation=0.75)])
+    kp = rig.key_points
+    assert np.all(band.true_field(np.full(7, 0.10), kp) == 0)
+    assert np.array_equal(band.true_field(np.full(7, 0.9), kp), band.true_field(np.full(7, 0.75), kp))
+    u = 0.4
+    eff = 0.75 * (u - 0.12) / (0.75 - 0.12)
+    assert np.allclose(band.thrust(np.full(7, u)), perfect.thrust(np.full(7, eff)))
+
+
+def test_tilted_fan_lands_displaced(perfect, rig, lone):
+    sim = perfect.with_effects([TiltedFan('LM2', shift=(0.04, -0.02))])
+    pts = rig.key_points
+    assert np.allclose(sim.point_field(lone('LM2'), pts),
+                       perfect.point_field(lone('LM2'), pts - np.array([0.04, -0.02])))
+
+
+def test_elongated_footprint_stretches_along_and_squeezes_across(perfect, rig, lone):
+    ratio, angle = 2.0, 0.5
+    sim = perfect.with_effects([ElongatedFootprint('LM3', ratio=ratio, angle=angle)])
+    hub = rig.fans.positions[rig.fans.index('LM3')]
+    along, across = np.array([np.cos(angle), np.sin(angle)]), np.array([-np.sin(angle), np.cos(angle)])
+    d = np.array([0.05, 0.1, 0.15])[:, None]
+    pwm = lone('LM3')
+    assert np.allclose(sim.point_field(pwm, hub + d * along),
+                       perfect.point_field(pwm, hub + d * along / np.sqrt(ratio)))
+    assert np.allclose(sim.point_field(pwm, hub + d * across),
+                       perfect.point_field(pwm, hub + d * across * np.sqrt(ratio)))
+    g = np.linspace(-0.6, 0.6, 241)
+    xx, yy = np.meshgrid(g, g)
+    grid = hub + np.column_stack([xx.ravel(), yy.ravel()])
+    assert sim.point_field(pwm, grid).sum() == pytest.approx(perfect.point_field(pwm, grid).sum(), rel=1e-3)
+
+
+def test_background_draft_adds_its_constant(perfect, rig):
+    sim = perfect.with_effects([BackgroundDraft(force=0.3)])
+    kp = rig.key_points
+    for pwm in (np.zeros(7), np.full(7, 0.5)):
+        assert np.allclose(sim.true_field(pwm, kp) - perfect.true_field(pwm, kp), 0.3)
+
+
+# -- composition -----------------------------------------------------------------------------------
+def test_effects_compose_in_pipeline_order_whatever_the_list_order(tunnel, rig):
+    effects = [make_effect(n) for n in sorted(HIDDEN_EFFECTS)]
+    pwm, kp = np.full(7, 0.5), rig.key_points
+    a = tunnel.with_effects(effects).true_field(pwm, kp)
+    b = tunnel.with_effects(effects[::-1]).true_field(pwm, kp)
+    assert np.allclose(a, b) and np.all(np.isfinite(a))
+
+
+def test_composed_laws(perfect, rig, lone):
+    kp, pwm = rig.key_points, np.full(7, 0.5)
+    weak_draft = perfect.with_effects([WeakFan('HM2', 0.5), BackgroundDraft(0.2)])
+    weak = perfect.with_effects([WeakFan('HM2', 0.5)])
+    assert np.allclose(weak_draft.true_field(pwm, kp), weak.true_field(pwm, kp) + 0.2)
+    # the wall boundary layer slows the ambient draft too: F = (jets + draft) * factor
+    both = perfect.with_effects([WallBoundaryLayer(0.06), BackgroundDraft(0.2)])
+    p = np.array([[0.0, 0.44]])
+    factor = 1 - np.exp(-0.06 / 0.06)
+    assert both.point_field(np.zeros(7), p)[0] == pytest.approx(0.2 * factor)
+    # a dead band and a weak fan act on different stages and commute
+    ab = perfect.with_effects([DeadBand(), WeakFan('LM1', 0.6)]).thrust(pwm)
+    ba = perfect.with_effects([WeakFan('LM1', 0.6), DeadBand()]).thrust(pwm)
+    assert np.allclose(ab, ba)
+
+
+def test_effects_reach_calibration_and_sweeps(perfect, rig, lone):
+    sim = perfect.with_effects([WeakFan('LM1', 0.5)])
+    hub = rig.fans.positions[:1]
+    sim.apply(lone('LM1'))
+    assert sim.measure_at(hub)[0] == pytest.approx(sim.true_field(lone('LM1'), hub)[0])
+    sweep = sim.sweep(200)
+    assert np.allclose(sweep.forces, sim.true_field(sweep.pwm, sweep.positions))
