@@ -96,6 +96,16 @@ def test_build_is_fixed_by_default_and_varies_with_build_seed(rig):
     assert 0.003 < np.mean(np.hypot(*imp.offset.T)) < 0.02
 
 
+def test_build_imperfections_act_on_thrust_landing_and_width(tunnel, perfect, rig, lone):
+    imp, pwm = tunnel.imperfections, np.full(7, 0.5)
+    assert np.allclose(tunnel.thrust(pwm) / perfect.thrust(pwm), imp.gain)
+    k = rig.fans.index('HM3')
+    hub, landing = rig.fans.positions[k], rig.fans.positions[k] + imp.offset[k]
+    d = np.array([[0.0, 0.0], [0.06, 0.0], [0.0, -0.1]])
+    expected = perfect.point_field(lone('HM3'), hub + d / imp.width_scale[k]) * imp.gain[k]
+    assert np.allclose(tunnel.point_field(lone('HM3'), landing + d), expected)
+
+
 # -- sweeps ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize('path, min_cover', [(TourPath(), 0.97), (RandomWalkPath(), 0.6)])
 def test_sweep_shape_timing_and_coverage(rig, path, min_cover):
