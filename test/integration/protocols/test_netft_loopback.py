@@ -1,0 +1,199 @@
+"""NetFtClient against SimNetFtServer over UDP loopback: counts, values, faults, sources."""
+import math
+import socket
+import threading
+import time
+
+import pytest
+
+from wind_shaper.core.protocols.netft import (NetFtCalibration, RdtRecord, RdtSequenceTracker,
+                                              decode_records, encode_records)
+from wind_shaper.io import LinkConfigError, NetFtClient, TransportError
+from wind_shaper.sim.netft_server import NetFtFaults, SimNetFtServer
+
+TOP = 2**32
+RATE = 1000.0
+
+
+def wrench(t):
+    """Smooth test wrench: forces [N], torques [N m]."""
+    return (math.sin(2 * math.pi * t), 0.5 * math.cos(t), 9.81 + 0.1 * t, 0.01 * t, -0.02, 0.003)
+
+
+class Collector:
+    def __init__(self):
+        self.samples, self.stats = [], None
+        self.lock = threading.Lock()
+
+    def __call__(self, sample, stats):
+        with self.lock:
+            self.samples.append(sample)
+            self.stats = stats
+
+
+@pytest.fixture
+def rig():
+    made = []
+
+    def make(faults=None, initial=1, source=wrench, client_kw=None, **server_kw):
+        server = SimNetFtServer(source, rate_hz=server_kw.pop('rate_hz', RATE), faults=faults,
+                                initial_rdt_sequence=initial, **server_kw)
+        made.append(server)
+        got = Collector()
+        client = NetFtClient('127.0.0.1', server.port, local_host='127.0.0.1', on_sample=got,
+                             calibration=NetFtCalibration(server.calibration.counts_per_force,
+                                                          server.calibration.counts_per_torque),
+                             **(client_kw or {}))
+        made.append(client)
+        return server, client, got
+
+    yield make
+    for obj in reversed(made):
+        obj.close()
+
+
+def test_one_second_at_1khz_with_faults_counts_exactly_what_the_server_did(rig, wait_for):
+    initial = TOP - 400                                    # the stream wraps past 2^32
+    faults = NetFtFaults(drop_probability=0.02, reorder_probability=0.03,
+                         duplicate_probability=0.01, truncate_probability=0.005, seed=11)
+    server, client, got = rig(faults, initial=initial)
+    t0 = time.perf_counter()
+    client.start(sample_count=1000)
+    assert server.wait_idle(5.0, min_generated=1000)
+    log = server.fault_log()
+    assert wait_for(lambda: client.stats.datagrams == log.datagrams_sent, 2.0), \
+        (client.stats, log.datagrams_sent)
+    elapsed = time.perf_counter() - t0
+    s = client.stats
+    assert log.generated == 1000 and log.dropped and log.reordered and log.duplicated
+    assert s.lost == len(log.dropped) + len(log.truncated)
+    assert s.out_of_order == len(log.reordered)
+    assert s.duplicates == len(log.duplicated)
+    assert s.malformed == len(log.truncated)
+    assert s.rejected == 0 and s.stale == 0 and s.resyncs == 0
+    assert s.received == 1000 - len(log.dropped) - len(log.truncated) + len(log.duplicated)
+    # only in-order, intact records reach the callback, each once
+    seqs = [x.rdt_sequence for x in got.samples]
+    assert len(seqs) == len(set(seqs)) == s.accepted
+    assert s.accepted == 1000 - len(log.dropped) - len(log.truncated) - len(log.reordered)
+    lost = set(log.dropped) | set(log.truncated) | set(log.reordered)
+    assert set(seqs) == {(initial + k) % TOP for k in range(1000)} - lost
+    # values are the source's, at the ideal sample time, to the count resolution
+    for x in got.samples:
+        k = (x.rdt_sequence - initial) % TOP
+        expected = wrench(k / RATE)
+        assert x.ok
+        assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, expected))
+    print(f'\nRDT loopback: {s.accepted} samples in {elapsed:.3f} s '
+          f'({s.received / elapsed:.0f} records/s received); {s}')
+
+
+def test_decode_rate_of_the_pure_path_beats_the_sensor():
+    """decode + sequence tracking + SI conversion of 7 kHz worth of records, timed."""
+    cal = NetFtCalibration()
+    tracker = RdtSequenceTracker()
+    datagrams = [encode_records([RdtRecord(i, i, 0, i, -i, 3, 4, 5, 6)]) for i in range(20000)]
+    t0 = time.perf_counter()
+    n = 0
+    for d in datagrams:
+        for rec in decode_records(d):
+            if tracker.accept(rec.rdt_sequence):
+                cal.to_sample(rec)
+                n += 1
+    rate = n / (time.perf_counter() - t0)
+    print(f'\nRDT pure decode path: {rate:.0f} records/s')
+    assert n == 20000 and rate > 7000
+
+
+def test_packets_from_a_wrong_source_are_rejected(rig, wait_for):
+    server, client, got = rig()
+    intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        intruder.bind(('127.0.0.1', 0))
+        forged = encode_records([RdtRecord(5, 5, 0, *([123_000_000] * 6))])
+        for _ in range(10):
+            intruder.sendto(forged, client.local_address)
+        client.start(sample_count=50)
+        assert server.wait_idle(3.0, min_generated=50)
+        assert wait_for(lambda: client.stats.rejected == 10 and client.stats.accepted == 50, 2.0), \
+            client.stats
+        assert all(abs(x.force[0]) < 2.0 for x in got.samples)   # none of the forged 123 N
+    finally:
+        intruder.close()
+
+
+def test_status_faults_and_overflow_are_reported_not_silently_used(rig, wait_for):
+    faults = NetFtFaults(status_fault_probability=0.05, overflow_probability=0.05, seed=3)
+    server, client, got = rig(faults)
+    client.start(sample_count=400)
+    assert server.wait_idle(3.0, min_generated=400)
+    assert wait_for(lambda: client.stats.accepted == 400, 2.0)
+    log = server.fault_log()
+    bad = set(log.status_faults) | set(log.overflows)
+    assert bad
+    flagged = {x.rdt_sequence for x in got.samples if not x.ok}
+    assert flagged == bad and client.stats.faulted == len(bad)
+    for x in got.samples:
+        if x.rdt_sequence in log.overflows:
+            assert x.status_info.saturated and x.status_info.any_error
+        elif x.rdt_sequence in log.status_faults:
+            assert x.status_info.transducer_error          # default bits: broken gage
+
+
+def test_saturating_source_sets_the_saturation_bits(rig, wait_for):
+    server, client, got = rig(source=lambda t: (1e6, 0, 0, 0, 0, math.nan))
+    client.start(sample_count=20)
+    assert wait_for(lambda: client.stats.accepted == 20, 3.0)
+    assert all(not x.ok and x.status_info.saturated for x in got.samples)
+
+
+def test_bias_zeroes_the_reading_and_stop_stops_the_stream(rig, wait_for):
+    server, client, got = rig(source=lambda t: (1.0, 2.0, 3.0, 0.1, 0.2, 0.3))
+    client.start()
+    assert wait_for(lambda: len(got.samples) >= 20, 2.0)
+    assert got.samples[-1].force == (1.0, 2.0, 3.0)
+    client.bias()
+    assert wait_for(lambda: got.samples[-1].force == (0.0, 0.0, 0.0), 2.0)
+    client.stop()
+    assert wait_for(lambda: not server.streaming, 1.0)
+    time.sleep(0.05)
+    n = len(got.samples)
+    time.sleep(0.1)
+    assert len(got.samples) == n
+    assert server.requests == dict(start=1, stop=1, bias=1, unknown=0, malformed=0)
+
+
+def test_restart_resets_counters_and_a_callback_error_does_not_kill_the_reader(rig, wait_for):
+    calls = []
+
+    def flaky(sample, stats):
+        calls.append(sample.rdt_sequence)
+        if len(calls) == 3:
+            raise RuntimeError('consumer bug')
+
+    server, client, _ = rig()
+    client.on_sample = flaky
+    client.start(sample_count=30)
+    assert wait_for(lambda: client.stats.accepted == 30, 3.0)
+    assert client.stats.callback_errors == 1 and len(calls) == 30
+    client.start(sample_count=10)                          # sequence continues on the server
+    assert wait_for(lambda: client.stats.accepted == 10, 3.0)
+    assert client.stats.lost == 0 and client.stats.callback_errors == 0
+
+
+def test_closed_client_refuses_commands_and_bad_config_is_explained(rig, monkeypatch):
+    server, client, _ = rig()
+    client.close()
+    client.close()
+    with pytest.raises(TransportError, match='closed'):
+        client.start()
+
+    def no_dns(*args, **kwargs):
+        raise socket.gaierror(-2, 'Name or service not known')
+
+    with monkeypatch.context() as m:                       # no resolver traffic from tests
+        m.setattr(socket, 'getaddrinfo', no_dns)
+        with pytest.raises(LinkConfigError, match='resolve'):
+            NetFtClient('sensor.example')
+    with pytest.raises(LinkConfigError, match='port'):
+        NetFtClient('127.0.0.1', port=0)

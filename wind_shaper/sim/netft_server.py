@@ -1,0 +1,336 @@
+"""A simulated ATI Net F/T sensor: answers RDT requests on UDP and streams records from a thread.
+
+``SimNetFtServer`` binds a UDP socket (port 0 = a free port; ``port`` tells which) and behaves
+like the sensor: a start request (command 2) streams ``sample_count`` records (0 = until stopped)
+to the address the request came from, one record per datagram at ``rate_hz``, paced by a
+monotonic clock (when the thread is late it sends the records it owes back to back, at most
+``max_batch`` at once; beyond that it skips ahead and counts ``late_skips``); a stop request
+(command 0) stops; a bias request (0x42) zeroes the current reading.
+
+The wrench comes from ``force_source(t)`` -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]), with t [s] the
+ideal sample time k / rate_hz since the stream started. Readings beyond int32 counts (or NaN)
+saturate and set status bits 31 and 30, like a saturated transducer.
+
+Fault injection (``NetFtFaults``, seeded, so runs repeat): drops, reorders (a record is held
+back and sent right after the next one sent), duplicates, truncated datagrams, status fault
+bits, and overflowed (saturated) readings. ``fault_log()`` tells which rdt_sequence numbers
+were hit, to compare with what a client counted.
+"""
+from __future__ import annotations
+
+import logging
+import random
+import select
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+from ..core.protocols.errors import NetFtPacketError, ProtocolConfigError
+from ..core.protocols.netft import (INT32_MAX, NetFtCalibration, RdtCommand, RdtRecord,
+                                    decode_request)
+
+__all__ = ['SimNetFtServer', 'NetFtFaults', 'NetFtFaultLog', 'SATURATION_STATUS']
+
+_log = logging.getLogger(__name__)
+_U32 = 1 << 32
+SATURATION_STATUS = (1 << 31) | (1 << 30)     # error + force/torque out of range
+SOURCE_ERROR_STATUS = (1 << 31) | (1 << 5)    # error + other error
+
+
+@dataclass(frozen=True)
+class NetFtFaults:
+    """Seeded fault injection. Probabilities are per record, in 0..1.
+
+    drop: never sent; reorder: sent after the next record that is sent; duplicate: sent twice;
+    truncate: sent cut to 1..35 bytes (malformed at the client); status_fault: status |=
+    status_bits; overflow: readings replaced by full-scale counts with SATURATION_STATUS.
+    """
+
+    drop_probability: float = 0.0
+    reorder_probability: float = 0.0
+    duplicate_probability: float = 0.0
+    truncate_probability: float = 0.0
+    status_fault_probability: float = 0.0
+    status_bits: int = (1 << 31) | (1 << 2)   # error + broken gage
+    overflow_probability: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ('drop_probability', 'reorder_probability', 'duplicate_probability',
+                     'truncate_probability', 'status_fault_probability', 'overflow_probability'):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
+                raise ProtocolConfigError(f'{name} must be in 0..1; got {value!r}')
+        if not 0 < int(self.status_bits) < _U32:
+            raise ProtocolConfigError(f'status_bits must be a nonzero uint32; got '
+                                      f'{self.status_bits!r}')
+
+
+@dataclass(frozen=True)
+class NetFtFaultLog:
+    """rdt_sequence numbers the server generated and what it did to them."""
+
+    generated: int = 0
+    datagrams_sent: int = 0
+    dropped: tuple[int, ...] = ()
+    reordered: tuple[int, ...] = ()
+    duplicated: tuple[int, ...] = ()
+    truncated: tuple[int, ...] = ()
+    status_faults: tuple[int, ...] = ()
+    overflows: tuple[int, ...] = ()
+    unsent: tuple[int, ...] = ()
+    late_skips: int = 0
+
+
+@dataclass
+class _Log:
+    generated: int = 0
+    datagrams_sent: int = 0
+    dropped: list = field(default_factory=list)
+    reordered: list = field(default_factory=list)
+    duplicated: list = field(default_factory=list)
+    truncated: list = field(default_factory=list)
+    status_faults: list = field(default_factory=list)
+    overflows: list = field(default_factory=list)
+    unsent: list = field(default_factory=list)
+    late_skips: int = 0
+
+
+class SimNetFtServer:
+    """Simulated Net F/T on UDP: force_source(t [s]) -> 6 floats [N, N m]."""
+
+    def __init__(self, force_source: Callable[[float], Sequence[float]], host: str = '127.0.0.1',
+                 port: int = 0, rate_hz: float = 1000.0, counts_per_force: float = 1_000_000.0,
+                 counts_per_torque: float = 1_000_000.0, *, faults: NetFtFaults | None = None,
+                 initial_rdt_sequence: int = 1, initial_ft_sequence: int = 0,
+                 max_batch: int = 100):
+        if not (isinstance(rate_hz, (int, float)) and 0 < rate_hz <= 10_000):
+            raise ProtocolConfigError(f'rate_hz must be in (0, 10000]; got {rate_hz!r} '
+                                      f'(Net F/T: up to 7000 Hz)')
+        if not 0 <= initial_rdt_sequence < _U32 or not 0 <= initial_ft_sequence < _U32:
+            raise ProtocolConfigError('initial sequence numbers are uint32')
+        self.force_source = force_source
+        self.rate_hz = float(rate_hz)
+        self.calibration = NetFtCalibration(counts_per_force, counts_per_torque)
+        self.faults = faults or NetFtFaults()
+        self.max_batch = int(max_batch)
+        self._rng = random.Random(self.faults.seed)
+        self._rdt_seq = int(initial_rdt_sequence)
+        self._ft_seq = int(initial_ft_sequence)
+        self._bias = (0.0,) * 6
+        self._lock = threading.Lock()
+        self._log = _Log()
+        self._client: tuple[str, int] | None = None
+        self._streaming = False
+        self._remaining = 0
+        self._k = 0
+        self._t_start = 0.0
+        self._held: tuple[int, bytes] | None = None
+        self.requests = dict(start=0, stop=0, bias=0, unknown=0, malformed=0)
+        self.source_errors = 0
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        self._sock.bind((host, port))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='sim-netft', daemon=True)
+        self._thread.start()
+
+    # ---------------------------------------------------------------- public
+    @property
+    def address(self) -> tuple[str, int]:
+        return self._sock.getsockname()[:2]
+
+    @property
+    def port(self) -> int:
+        return self.address[1]
+
+    @property
+    def streaming(self) -> bool:
+        return self._streaming
+
+    @property
+    def client(self) -> tuple[str, int] | None:
+        """Address the last start request came from."""
+        return self._client
+
+    def fault_log(self) -> NetFtFaultLog:
+        with self._lock:
+            g = self._log
+            return NetFtFaultLog(g.generated, g.datagrams_sent, tuple(g.dropped),
+                                 tuple(g.reordered), tuple(g.duplicated), tuple(g.truncated),
+                                 tuple(g.status_faults), tuple(g.overflows), tuple(g.unsent),
+                                 g.late_skips)
+
+    def wait_idle(self, timeout_s: float = 5.0, min_generated: int = 1) -> bool:
+        """Wait until at least ``min_generated`` records were generated and streaming has ended
+        (a finite stream sent completely, or stopped). False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if not self._streaming and self._log.generated >= min_generated:
+                return True
+            time.sleep(0.005)
+        return False
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+        with self._lock:
+            if self._held is not None:
+                self._log.unsent.append(self._held[0])
+                self._held = None
+        self._sock.close()
+
+    def __enter__(self) -> 'SimNetFtServer':
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- loop
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        while not self._stop.is_set():
+            timeout = 0.05
+            if self._streaming:
+                self._emit_due(time.monotonic())
+                if self._streaming:
+                    timeout = min(timeout, max(0.0, self._t_start + self._k * period
+                                               - time.monotonic()))
+            try:
+                ready, _, _ = select.select([self._sock], [], [], timeout)
+            except (OSError, ValueError):
+                break
+            if ready:
+                self._receive()
+
+    def _receive(self) -> None:
+        try:
+            data, addr = self._sock.recvfrom(2048)
+        except OSError:
+            return
+        try:
+            request = decode_request(data)
+        except NetFtPacketError as exc:
+            self.requests['malformed'] += 1
+            _log.debug('sim netft: %s', exc)
+            return
+        if request.command == RdtCommand.START_REALTIME:
+            self.requests['start'] += 1
+            self._client = addr[:2]
+            self._remaining = request.sample_count
+            self._k = 0
+            self._t_start = time.monotonic()
+            self._streaming = True
+        elif request.command == RdtCommand.STOP_STREAMING:
+            self.requests['stop'] += 1
+            self._finish()
+        elif request.command == RdtCommand.SET_SOFTWARE_BIAS:
+            self.requests['bias'] += 1
+            self._bias = self._raw_wrench(self._k / self.rate_hz) or self._bias
+        else:
+            self.requests['unknown'] += 1
+
+    def _finish(self) -> None:
+        if self._held is not None:
+            # nothing intact was sent after it, so it arrives in order after all: not reordered
+            with self._lock:
+                self._log.reordered.remove(self._held[0])
+            self._sendto(self._held[1])
+            self._held = None
+        self._streaming = False
+
+    def _emit_due(self, now: float) -> None:
+        due = int((now - self._t_start) * self.rate_hz) + 1 - self._k
+        if due > self.max_batch:
+            skip = due - self.max_batch
+            self._t_start += skip / self.rate_hz
+            with self._lock:
+                self._log.late_skips += skip
+            due = self.max_batch
+        for _ in range(max(0, due)):
+            self._emit_one()
+            if self._remaining:
+                self._remaining -= 1
+                if self._remaining == 0:
+                    self._finish()
+                    return
+
+    def _raw_wrench(self, t: float) -> tuple[float, ...] | None:
+        """force_source(t), or None (counted in source_errors) if it raised or gave not 6 values."""
+        try:
+            w = tuple(float(x) for x in self.force_source(t))
+        except Exception:
+            w = None
+            if self.source_errors == 0:
+                _log.exception('sim netft force_source raised')
+        if w is None or len(w) != 6:
+            self.source_errors += 1
+            return None
+        return w
+
+    def _emit_one(self) -> None:
+        f = self.faults
+        r_overflow, r_status, r_drop, r_trunc, r_reorder, r_dup = (self._rng.random()
+                                                                    for _ in range(6))
+        cut = self._rng.randint(1, 35)
+        seq, ft_seq = self._rdt_seq, self._ft_seq
+        self._rdt_seq = (seq + 1) % _U32
+        self._ft_seq = (ft_seq + 1) % _U32
+        t = self._k / self.rate_hz
+        self._k += 1
+        raw = self._raw_wrench(t)
+        status = 0
+        if raw is None:
+            counts, status = (0,) * 6, SOURCE_ERROR_STATUS
+        else:
+            counts, saturated = self.calibration.to_counts(
+                [a - b for a, b in zip(raw, self._bias)])
+            if saturated:
+                status |= SATURATION_STATUS
+        log = self._log
+        with self._lock:
+            log.generated += 1
+            if r_overflow < f.overflow_probability:
+                counts, status = (INT32_MAX,) * 6, status | SATURATION_STATUS
+                log.overflows.append(seq)
+            if r_status < f.status_fault_probability:
+                status |= f.status_bits
+                log.status_faults.append(seq)
+            data = RdtRecord(seq, ft_seq, status, *counts).encode()
+            if r_drop < f.drop_probability:
+                log.dropped.append(seq)
+                return
+            if r_trunc < f.truncate_probability:
+                # a held record waits for the next intact datagram, so it still arrives late
+                log.truncated.append(seq)
+                self._sendto(data[:cut])
+                return
+            if self._held is None and r_reorder < f.reorder_probability:
+                log.reordered.append(seq)
+                self._held = (seq, data)
+                return
+            if r_dup < f.duplicate_probability:
+                log.duplicated.append(seq)
+                self._sendto(data)
+            held, self._held = self._held, None
+        self._sendto(data)
+        if held is not None:
+            self._sendto(held[1])
+
+    def _sendto(self, data: bytes) -> None:
+        if self._client is None:
+            return
+        try:
+            self._sock.sendto(data, self._client)
+            self._log.datagrams_sent += 1
+        except OSError as exc:
+            _log.debug('sim netft send failed: %s', exc)
+
+    def __repr__(self) -> str:
+        return (f'SimNetFtServer(port={self.port}, rate_hz={self.rate_hz}, '
+                f'streaming={self._streaming})')
