@@ -13,6 +13,12 @@ listens; 'udpin:HOST:PORT' listens and answers whoever sends first) and runs two
 ``go_safe()`` sends every fan its safe pulse; ``close()`` goes safe first. Callbacks run on the
 link's threads: keep them short. Optional MAVLink 2 signing: ``signing=True`` with a 32-byte
 ``signing_key``; unsigned or badly signed messages are then dropped.
+
+Limits, on purpose: ``send`` is not refused while the link is down (after a loss the held
+command is the safe one; sending again is the caller's decision). ACKs are matched by command
+id only (MAVLink has no request id), so a late ACK of an earlier command with the same id can
+answer a wait. After ``close()`` an RC override is no longer refreshed: the autopilot drops it
+after its timeout and falls back to its RC input, so its own failsafe/trim must also be safe.
 """
 from __future__ import annotations
 

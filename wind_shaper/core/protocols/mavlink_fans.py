@@ -248,8 +248,9 @@ class FanChannelMap:
             try:
                 out.append(FanChannel(name=str(name), **fields))
             except TypeError as exc:
-                raise ProtocolConfigError(f'fan {name!r}: {exc}; allowed keys are channel, '
-                                          f'pwm_min_us, pwm_max_us, safe_us, u_min, u_max') from None
+                raise ProtocolConfigError(
+                    f'fan {name!r}: {exc}; allowed keys are channel, pwm_min_us, pwm_max_us, '
+                    f'safe_us, u_min, u_max') from None
         return cls(out)
 
     @property

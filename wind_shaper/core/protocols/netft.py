@@ -122,13 +122,14 @@ class RdtRecord(NamedTuple):
         return (self.fx, self.fy, self.fz, self.tx, self.ty, self.tz)
 
     def encode(self) -> bytes:
-        """The 36 record bytes, big-endian; raises ProtocolConfigError if a field is out of range."""
+        """The 36 record bytes, big-endian; ProtocolConfigError if a field is out of range."""
         try:
             return _RECORD.pack(*self)
         except struct.error as exc:
             raise ProtocolConfigError(
-                f'RDT record {tuple(self)} cannot be encoded ({exc}): sequence numbers and status '
-                f'are uint32 and readings int32 counts; saturate readings before encoding') from None
+                f'RDT record {tuple(self)} cannot be encoded ({exc}): sequence numbers and '
+                f'status are uint32 and readings int32 counts; saturate readings before '
+                f'encoding') from None
 
 
 def encode_records(records: Iterable[RdtRecord]) -> bytes:
