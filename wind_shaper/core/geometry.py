@@ -169,10 +169,12 @@ class FanArray:
         return float(np.max(np.hypot(*self.positions.T)))
 
 
-def disc_key_points(radius: float = 0.40, spacing: float = 0.04) -> np.ndarray:
+def disc_key_points(radius: float = 0.30, spacing: float = 0.03) -> np.ndarray:
     """Key points on a square grid of ``spacing`` [m] inside a disc of ``radius`` [m].
 
-    The defaults give 317 points, the paper's count (the lattice points within 10 spacings).
+    The defaults give 317 points, the paper's count: the lattice points within 10 spacings of
+    the axis (any radius/spacing ratio of 10 gives 317). A 0.30 m disc covers the hexagon's
+    hubs (0.25 m) and one plate half-width beyond.
     Returns (N, 2) [m, tunnel frame], ordered row by row.
     """
     if not (radius > 0 and spacing > 0):
@@ -206,9 +208,9 @@ class TunnelGeometry:
 
     fans: FanArray
     key_points: np.ndarray
-    wall_radius: float = 0.5
+    wall_radius: float = 0.40
     plate_side: float = 0.20
-    sweep_radius: float = 0.44
+    sweep_radius: float = 0.34
     extra: Mapping = field(default_factory=dict)
 
     def __post_init__(self):

@@ -22,12 +22,19 @@ from .geometry import FanArray
 
 @dataclass(frozen=True)
 class Hyper:
-    """Declaration of a term parameter: name, element count, bounds, fixed or free."""
+    """Declaration of a term parameter: name, element count, bounds, fixed or free.
+
+    bounds: one (low, high) pair for every element, or one pair per element."""
 
     name: str
     size: int = 1
-    bounds: tuple[float, float] = (-np.inf, np.inf)
+    bounds: tuple = (-np.inf, np.inf)
     fixed: bool = False
+
+    def element_bounds(self) -> np.ndarray:
+        """(size, 2) bounds of each element."""
+        b = np.asarray(self.bounds, dtype=float)
+        return np.broadcast_to(b, (self.size, 2)) if b.ndim == 1 else b.reshape(self.size, 2)
 
 
 def _batch(U, Z, n_fans):
@@ -93,9 +100,8 @@ class Term:
     @property
     def bounds(self) -> np.ndarray:
         """(n_theta, 2) lower and upper bound of each free parameter."""
-        rows = [[h.bounds] * h.size for h in self._free()]
-        flat = [b for r in rows for b in r]
-        return np.array(flat, dtype=float).reshape(-1, 2)
+        rows = [h.element_bounds() for h in self._free()]
+        return np.vstack(rows) if rows else np.zeros((0, 2))
 
     def with_theta(self, theta) -> 'Term':
         """A copy whose free parameters are ``theta`` (the term itself is never mutated)."""
@@ -133,10 +139,10 @@ class Term:
             v = np.atleast_1d(np.asarray(getattr(self, h.name), dtype=float))
             if v.shape != (h.size,):
                 raise ConfigError(f'{type(self).__name__}.{h.name} needs {h.size} values, got {v.shape[0]}')
-            lo, hi = h.bounds
+            lo, hi = h.element_bounds().T
             if not np.all(np.isfinite(v)) or np.any(v < lo) or np.any(v > hi):
                 raise ConfigError(f'{type(self).__name__}.{h.name} = {v.tolist()} is outside its '
-                                  f'bounds [{lo}, {hi}]')
+                                  f'bounds {np.column_stack([lo, hi]).tolist()}')
 
     # -- composition ---------------------------------------------------------------------------
     def __add__(self, other: 'Term') -> 'Term':
@@ -250,7 +256,10 @@ def _sq_dist(Z, centres):
     return np.einsum('mnk,mnk->mn', d, d)
 
 
-POLY_BOUNDS = (-50.0, 50.0)
+#: Bounds of the PWM-to-force polynomial c0 + c1 U + c2 U^2 [N]: c1, c2 >= 0 keeps P
+#: non-decreasing on [0, 1] (thrust never falls as PWM rises); a fitted negative slope near
+#: U = 0 would make the update push a fan up to lower the force.
+POLY_BOUNDS = ((-2.0, 2.0), (0.0, 100.0), (0.0, 100.0))
 SIGMA_BOUNDS = (0.02, 1.0)
 
 
@@ -310,17 +319,20 @@ class CentralRing(Term):
     """The central fan's ring: P_c(U_c) (offset + d_c^2 / ring_scale^2) exp(-d_c^2 / sigma^2).
 
     The paper found that raising the (low-mounted) central fan mostly raises the flow over the
-    edge fans; with ``offset`` = 0.1 and ``ring_scale`` = 1 m this is its formula exactly.
-    thrust: P_c coefficients [N]; sigma [m]; offset [-]; d_c: distance to the central hub [m].
-    Applies to the fans of group ``central`` (zero if there is none).
+    edge fans; with ``offset`` = 0.1 and ``ring_scale`` = 1 m this is its formula exactly. With
+    d in metres that form makes the ring a few hundredths of P_c, so the fitted polynomial must
+    be huge; the default ``ring_scale`` of 0.2 m (about the ring's radius) keeps every
+    parameter of order one and spans the same family of shapes.
+    thrust: P_c coefficients [N]; sigma [m]; offset [-]; ring_scale [m, fixed by default];
+    d_c: distance to the central hub [m]. Applies to fans of group ``central`` (none: zero).
     """
 
     kind = 'central_ring'
     hypers = (Hyper('thrust', 3, POLY_BOUNDS), Hyper('offset', 1, (0.0, 10.0)),
               Hyper('sigma', 1, SIGMA_BOUNDS), Hyper('ring_scale', 1, (0.01, 10.0), fixed=True))
 
-    def __init__(self, fans: FanArray, thrust=(0.0, 2.0, 9.0), offset: float = 0.1,
-                 sigma: float = 0.2, ring_scale: float = 1.0, fixed=()):
+    def __init__(self, fans: FanArray, thrust=(0.0, 1.0, 4.0), offset: float = 0.5,
+                 sigma: float = 0.2, ring_scale: float = 0.2, fixed=()):
         self.fans = fans
         self.thrust = np.asarray(thrust, dtype=float)
         self.offset = float(offset)

@@ -59,13 +59,13 @@ def test_fan_jets_is_the_papers_formula(rig):
 
 
 def test_central_ring_is_low_on_axis_high_on_ring(rig):
-    ring = CentralRing(rig.fans, thrust=(0, 2, 9), offset=0.02, sigma=0.35)
+    ring = CentralRing(rig.fans, thrust=(0, 2, 9), offset=0.02, sigma=0.35, ring_scale=1.0)
     U = np.zeros(7)
     U[6] = 0.5
     on_axis = ring(U, [[0.0, 0.0]])[0]
     on_ring = ring(U, [[0.25, 0.0]])[0]
     assert on_ring > on_axis > 0
-    # the paper's formula exactly
+    # the paper's formula exactly (ring_scale 1 m)
     P = 2 * 0.5 + 9 * 0.25
     assert on_ring == pytest.approx(P * (0.02 + 0.0625) * np.exp(-0.0625 / 0.35 ** 2))
 
