@@ -70,12 +70,16 @@ class UpdateRule(Protocol):
 @dataclass(frozen=True)
 class PaperUpdate:
     """The paper's Algorithm 1 update: pseudo-inverse Gauss-Newton step, decaying step size
-    lambda_k = gain / (k + 1), then clipping into the bounds. rcond: relative cut-off of small
-    singular values in the pseudo-inverse."""
+    lambda_k = gain / (k + 1), then clipping into the bounds.
+
+    rcond: singular values below rcond x the largest count as zero in the pseudo-inverse. A fan
+    idling near PWM 0 has a nearly flat thrust curve, hence a nearly zero Jacobian column;
+    inverting that tiny singular value throws the fan to full PWM, so the cut-off is 1e-3,
+    not machine precision."""
 
     gain: float = 0.8
     bounds: CommandBounds = CommandBounds()
-    rcond: float = 1e-10
+    rcond: float = 1e-3
 
     def __post_init__(self):
         if not self.gain > 0:

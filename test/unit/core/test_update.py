@@ -48,3 +48,16 @@ def test_bad_bounds_and_nan_are_refused():
         CommandBounds(0.0, 1.5)
     with pytest.raises(ConfigError, match='NaN'):
         CommandBounds().project(np.array([0.1, np.nan]), np.ones(2, bool))
+
+
+def test_a_nearly_flat_fan_is_not_thrown_to_full_pwm(rng):
+    # A fan idling at PWM ~0 with a flat thrust curve has a ~zero Jacobian column; inverting
+    # that singular value (machine-precision cut-off) would make a huge step for it.
+    J = rng.normal(size=(60, 3))
+    J[:, 2] *= 1e-6
+    delta = rng.normal(size=60)
+    U = np.array([0.3, 0.3, 1e-5])
+    safe = PaperUpdate().step(UpdateInput(0, U, delta, J, np.ones(3, bool)))
+    assert abs(safe.raw_step[2]) < 1.0
+    naive = PaperUpdate(rcond=1e-15).step(UpdateInput(0, U, delta, J, np.ones(3, bool)))
+    assert abs(naive.raw_step[2]) > 100  # what the cut-off prevents
