@@ -4,6 +4,10 @@
 curves, a central-fan ring, fixed build imperfections, plate averaging, turbulence), and can carry
 any subset of switchable ``HIDDEN_EFFECTS`` whose true parameters tests and benchmarks can check
 a diagnosis against. No ROS here.
+
+``SimAutopilot`` (MAVLink) and ``SimNetFtServer`` (ATI Net F/T RDT) put the plant behind the
+rig's own protocols on UDP loopback; they load on first use, so the plant alone never imports
+pymavlink.
 """
 from .effects import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, ElongatedFootprint, HiddenEffect,
                       JetInteraction, Swirl, TiltedFan, WallBoundaryLayer, WeakFan,
@@ -20,4 +24,14 @@ __all__ = [
     'HiddenEffect', 'WeakFan', 'Swirl', 'WallBoundaryLayer', 'JetInteraction', 'DeadBand',
     'TiltedFan', 'ElongatedFootprint', 'BackgroundDraft', 'HIDDEN_EFFECTS', 'make_effect',
     'effects_from_config', 'EffectError', 'CommandError',
+    'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]
+
+_LAZY = {'SimAutopilot': '.autopilot', 'SimNetFtServer': '.netft_server', 'NetFtFaults': '.netft_server'}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        from importlib import import_module
+        return getattr(import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
