@@ -112,7 +112,7 @@ step_requirements() {
         return
     fi
     local start=$SECONDS
-    log "installing tools/requirements.txt into .venv (first time: about a minute)"
+    log "installing tools/requirements.txt into .venv (1-3 min, mostly download)"
     run_logged pip-upgrade "$PY" -m pip install "pip==$PIP_VERSION"
     # --no-compile: skip byte-compiling ~600 MB of wheels (about 20 s); Python caches on first import.
     run_logged pip-requirements "$PY" -m pip install --no-compile -r "$REQUIREMENTS"
@@ -140,11 +140,13 @@ step_msgs() {
     { command -v c++ && command -v cc; } >/dev/null ||
         die "no C/C++ compiler found (apt-get install build-essential)"
     local start=$SECONDS
-    log "building msg_defs/ (wind_shaper_msgs) into .venv (first time: about a minute)"
-    # Files installed by an earlier build are removed first, so a deleted interface disappears.
+    log "building msg_defs/ (wind_shaper_msgs) into .venv (clean build: 20-60 s)"
+    # Always a clean build: rosidl leaves the outputs of a deleted interface in the build tree,
+    # and they would be installed again. Files installed by the last build are removed first.
     if [[ -f $MSG_BUILD/install_manifest.txt ]]; then
         xargs -d '\n' -r rm -f <"$MSG_BUILD/install_manifest.txt"
     fi
+    rm -rf "$MSG_BUILD"
     local env=(env "AMENT_PREFIX_PATH=$VENV" "CMAKE_PREFIX_PATH=$VENV" "PATH=$VENV/bin:$PATH")
     run_logged msgs-configure "${env[@]}" cmake -S "$ROOT/msg_defs" -B "$MSG_BUILD" \
         -DCMAKE_BUILD_TYPE=Release \
