@@ -13,6 +13,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*')),
+        ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     package_data={PACKAGE: ['data/*.yaml']},
     install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'matplotlib'],
@@ -23,6 +24,13 @@ setup(
     entry_points={
         'console_scripts': [
             'wind-shaper = wind_shaper.cli.main:main',
+            # one process per node: `ros2 run wind_shaper <node>`
+            'fan_output = wind_shaper.nodes.fan_output:main',
+            'force_sensor = wind_shaper.nodes.force_sensor:main',
+            'mocap_relay = wind_shaper.nodes.mocap_relay:main',
+            'field_estimator = wind_shaper.nodes.field_estimator:main',
+            'coordinator = wind_shaper.nodes.coordinator:main',
+            'sim_tunnel = wind_shaper.nodes.sim_tunnel:main',
         ],
     },
 )

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import time
 from pathlib import Path
@@ -85,7 +86,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--sim', action='store_true', help='calibrate on the simulated tunnel')
     p.add_argument('--out', type=Path, default=None, help='model file to write (default: config/model.yaml)')
     p.set_defaults(func=_cmd_calibrate)
+
+    # Subcommands that talk to the ROS graph live in their own modules (rclpy imported lazily).
+    for module in _GRAPH_COMMANDS:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+            continue  # that part of the graph is not built yet
+        mod.register(sub)
     return parser
+
+
+#: Modules with a ``register(subparsers)`` adding graph commands: up (graph.py), iterate /
+#: status / cancel (service.py), record / replay (bag.py).
+_GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_shaper.cli.bag')
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,42 @@
+"""Topic, service and node names of the wind_shaper graph (the contract between nodes).
+
+Every name is absolute under ``/wind_shaper`` except the raw motion-capture topic, which
+belongs to the mocap driver (vrpn_mocap style). Nodes read these as parameter defaults, so a
+lab can remap any of them.
+"""
+
+NAMESPACE = '/wind_shaper'
+
+# Nodes (node name = module name in wind_shaper.nodes)
+FAN_OUTPUT = 'fan_output'
+FORCE_SENSOR = 'force_sensor'
+MOCAP_RELAY = 'mocap_relay'
+FIELD_ESTIMATOR = 'field_estimator'
+COORDINATOR = 'coordinator'
+SIM_TUNNEL = 'sim_tunnel'
+GRAPH_NODES = (FAN_OUTPUT, FORCE_SENSOR, MOCAP_RELAY, FIELD_ESTIMATOR, COORDINATOR)
+
+# Topics
+FAN_COMMAND = '/wind_shaper/fans/command'        # wind_shaper_msgs/FanCommand: wanted PWMs
+FAN_APPLIED = '/wind_shaper/fans/applied'        # wind_shaper_msgs/FanCommand: read back from the autopilot
+FORCE = '/wind_shaper/force'                     # geometry_msgs/WrenchStamped, sensor frame [N, N m]
+MOCAP_POSE = '/vrpn_mocap/plate/pose'            # geometry_msgs/PoseStamped, mocap frame (raw)
+PLATE_POSE = '/wind_shaper/plate/pose'           # geometry_msgs/PoseStamped, tunnel frame, plate centre
+FIELD = '/wind_shaper/field'                     # wind_shaper_msgs/FieldEstimate
+STATUS = '/wind_shaper/iteration/status'         # wind_shaper_msgs/IterationStatus
+DIAGNOSTICS = '/diagnostics'                     # diagnostic_msgs/DiagnosticArray
+
+# Services
+RUN_ITERATION = '/wind_shaper/run_iteration'     # wind_shaper_msgs/RunIteration
+CANCEL_ITERATION = '/wind_shaper/cancel_iteration'  # std_srvs/Trigger
+SET_MODEL = '/wind_shaper/set_model'             # wind_shaper_msgs/SetModel
+BEGIN_SWEEP = '/wind_shaper/field_estimator/begin_sweep'  # std_srvs/Trigger
+ESTIMATE_FIELD = '/wind_shaper/field_estimator/estimate'  # wind_shaper_msgs/EstimateField
+SWEEP = '/wind_shaper/tunnel/sweep'              # wind_shaper_msgs/Sweep (plate motion)
+FORCE_BIAS = '/wind_shaper/force_sensor/bias'    # std_srvs/Trigger
+EMERGENCY_STOP = '/wind_shaper/fans/emergency_stop'  # std_srvs/Trigger (latches)
+RESET_STOP = '/wind_shaper/fans/reset_stop'      # std_srvs/Trigger
+
+# Frames
+TUNNEL_FRAME = 'tunnel'
+SENSOR_FRAME = 'force_sensor'
