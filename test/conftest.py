@@ -1,4 +1,14 @@
-"""Shared fixtures: geometry of the paper's rig and small synthetic data."""
+"""Shared fixtures: the paper rig's geometry, seeded randomness, and real ROS 2 processes.
+
+Every ROS participant of a test uses the run's ROS_DOMAIN_ID (tools/dev.sh test sets one per
+run) and LOCALHOST discovery, so parallel runs on one machine do not see each other.
+"""
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -13,3 +23,62 @@ def rig():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def _stop(process, grace_s=5.0):
+    """Stop a child: SIGINT (rclpy's clean shutdown path), then SIGKILL after grace_s [s]."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=grace_s)
+
+
+@pytest.fixture
+def ros_env(monkeypatch):
+    """Set and return the ROS environment of this test and of the processes it starts."""
+    domain_id = os.environ.get('ROS_DOMAIN_ID') or str(os.getpid() % 101 + 1)
+    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id)
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)  # deprecated; conflicts with the above
+    return dict(os.environ)
+
+
+@pytest.fixture
+def ros_context(ros_env):
+    """An initialised rclpy context of its own, shut down after the test."""
+    rclpy = pytest.importorskip('rclpy')
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
+    try:
+        yield context
+    finally:
+        context.try_shutdown()
+
+
+@pytest.fixture
+def ros_process(ros_env, tmp_path):
+    """Start a Python script as a separate ROS process: ``start(script, *args) -> Popen``.
+
+    The child gets the test's ROS environment and no stdin; its output goes to
+    ``process.log_path``. Every child still running at teardown is stopped.
+    """
+    started = []
+
+    def start(script, *args):
+        script = Path(script)
+        log_path = tmp_path / f'{script.stem}-{len(started)}.log'
+        with open(log_path, 'wb') as log:
+            process = subprocess.Popen(
+                [sys.executable, str(script), *map(str, args)],
+                env=ros_env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                start_new_session=True)  # a Ctrl-C in the terminal goes to pytest only
+        process.log_path = log_path
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        _stop(process)
