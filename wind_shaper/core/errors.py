@@ -19,3 +19,7 @@ class ModelFileError(WindShaperError, ValueError):
 
 class SweepError(WindShaperError, ValueError):
     """A sweep cannot be turned into a field estimate (too few samples, bad values)."""
+
+
+class FrameError(WindShaperError, ValueError):
+    """A transform or pose cannot be used (NaN, a quaternion that is not of unit norm)."""
