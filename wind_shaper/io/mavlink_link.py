@@ -201,6 +201,13 @@ class MavlinkFanLink:
             return dict(self._applied_pulses)
 
     @property
+    def heartbeat_age_s(self) -> float | None:
+        """Time since the last autopilot heartbeat [s], or None before the first."""
+        with self._state_lock:
+            last = self._last_heartbeat
+        return None if last is None else time.monotonic() - last
+
+    @property
     def commanded(self) -> FanCommand:
         """What the link last sent (or holds for the RC override refresh), every fan."""
         with self._state_lock:
