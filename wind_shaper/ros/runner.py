@@ -34,7 +34,15 @@ def run(node_cls, args=None, *, executor: str = 'multi', threads: int = 4) -> in
         else:
             ex = MultiThreadedExecutor(num_threads=threads)
         ex.add_node(node)
-        ex.spin()
+        if executor == 'events':
+            # EventsExecutor.spin() stays in C++ and never lets the Python SIGINT/SIGTERM
+            # handlers run: spin in slices of 0.2 s instead.
+            from rclpy.task import Future
+            never = Future()
+            while rclpy.ok():
+                ex.spin_until_future_complete(never, timeout_sec=0.2)
+        else:
+            ex.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except WindShaperError as exc:
