@@ -1,0 +1,215 @@
+"""force_sensor in-process against the loopback SimNetFtServer (real RDT over UDP)."""
+import math
+import socket
+import threading
+import time
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from wind_shaper.core.errors import ConfigError  # noqa: E402
+from wind_shaper.core.protocols.netft import RdtRecord  # noqa: E402
+from wind_shaper.nodes.force_sensor import ForceSensorNode, ForceSensorParams  # noqa: E402
+from wind_shaper.ros import names, qos  # noqa: E402
+from wind_shaper.ros.convert import stamp_to_seconds  # noqa: E402
+from wind_shaper.sim import NetFtFaults, SimNetFtServer  # noqa: E402
+
+pytestmark = pytest.mark.ros
+CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'force_sensor.yaml'
+
+
+def wait_for(predicate, timeout_s=3.0, interval_s=0.01):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value or time.monotonic() >= deadline:
+            return value
+        time.sleep(interval_s)
+
+
+def source(t):
+    """Fx carries the sample time t [s], so each message names the sample it came from."""
+    return (t, -0.25 + 0.1 * math.sin(3 * t), 4.0 + math.cos(5 * t), 0.012, -0.3 * t, 0.05)
+
+
+class Harness:
+    def __init__(self, context):
+        self.context = context
+        self.executor = MultiThreadedExecutor(num_threads=2, context=context)
+        self.client = rclpy.create_node('force_sensor_test_client', context=context)
+        self.executor.add_node(self.client)
+        self.nodes = []
+        self.wrenches, self.diagnostics = [], []
+        self.client.create_subscription(WrenchStamped, names.FORCE, self.wrenches.append,
+                                        qos.STREAM)
+        self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
+                                        self.diagnostics.append, 10)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def start(self, server, **overrides):
+        params = dict(sensor_host='127.0.0.1', sensor_port=server.port,
+                      counts_per_force=server.calibration.counts_per_force,
+                      counts_per_torque=server.calibration.counts_per_torque)
+        params.update(overrides)
+        node = ForceSensorNode(context=self.context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def call(self, service, timeout_s=3.0):
+        client = self.client.create_client(Trigger, service)
+        try:
+            assert client.wait_for_service(timeout_sec=timeout_s), f'{service} not available'
+            future = client.call_async(Trigger.Request())
+            assert wait_for(future.done, timeout_s), f'{service} did not answer'
+            return future.result()
+        finally:
+            self.client.destroy_client(client)
+
+    def fresh_diag(self, timeout_s=2.5):
+        """Values of the next diagnostics report of force_sensor."""
+        self.diagnostics.clear()
+
+        def latest():
+            for msg in reversed(self.diagnostics):
+                for status in msg.status:
+                    if status.name.startswith(names.FORCE_SENSOR):
+                        return {kv.key: kv.value for kv in status.values} | {
+                            '_level': status.level, '_message': status.message}
+            return None
+        return wait_for(latest, timeout_s)
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=2.0)
+        self.thread.join(timeout=5.0)
+        for node in self.nodes:
+            node.destroy_node()
+        self.client.destroy_node()
+
+
+@pytest.fixture
+def harness(ros_context):
+    h = Harness(ros_context)
+    yield h
+    h.close()
+
+
+@pytest.mark.parametrize('force_sign', [1, -1])
+def test_wrenches_match_the_source_within_the_count_resolution(harness, force_sign):
+    counts = 1000.0       # 1 mN and 1 mN m resolution, visible next to float noise
+    with SimNetFtServer(source, rate_hz=500.0, counts_per_force=counts,
+                        counts_per_torque=counts) as server:
+        t_start = time.time()
+        harness.start(server, force_sign=force_sign)
+        assert wait_for(lambda: len(harness.wrenches) >= 200), len(harness.wrenches)
+        t_end = time.time()
+    msgs = list(harness.wrenches)
+    s = force_sign
+    for m in msgs:
+        f, tq = m.wrench.force, m.wrench.torque
+        expected = source(round(f.x * 500) / 500)       # Fx = t, quantised to 1 ms counts
+        got = (f.x, s * f.y, s * f.z, tq.x, s * tq.y, s * tq.z)
+        assert all(abs(a - b) <= 0.5 / counts + 1e-12 for a, b in zip(got, expected)), \
+            (got, expected)
+        assert m.header.frame_id == names.SENSOR_FRAME
+        assert t_start - 0.01 <= stamp_to_seconds(m.header.stamp) <= t_end + 0.01
+    stamps = [stamp_to_seconds(m.header.stamp) for m in msgs]
+    assert all(b >= a for a, b in zip(stamps, stamps[1:]))          # stamped at reception
+    times = [m.wrench.force.x for m in msgs]
+    assert all(b > a for a, b in zip(times, times[1:]))             # in order, no repeats
+
+
+def test_loss_counts_match_the_injected_faults(harness):
+    faults = NetFtFaults(drop_probability=0.05, duplicate_probability=0.03,
+                         reorder_probability=0.03, status_fault_probability=0.03, seed=11)
+    with SimNetFtServer(source, rate_hz=500.0, faults=faults) as server:
+        node = harness.start(server)
+        assert wait_for(lambda: server.fault_log().generated >= 600, 5.0)
+        foreign = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            for _ in range(3):   # records from a stranger: rejected, never published
+                foreign.sendto(RdtRecord(10**6, 0, 0, *(10**6,) * 6).encode(),
+                               node._client.local_address)
+        finally:
+            foreign.close()
+        assert node.trigger_deactivate() == TransitionCallbackReturn.SUCCESS   # stop request
+        assert server.wait_idle(2.0)
+        log = server.fault_log()
+    first = 1
+    generated = set(range(first, first + log.generated))
+    sent = generated - set(log.dropped)
+    lo, hi = min(sent), max(sent)
+    expected_lost = sum(1 for d in log.dropped if lo < d < hi)
+    used = sent - set(log.reordered)                  # out-of-order records are not used
+    expected_faulted = len(used & set(log.status_faults))
+    expected_published = len(used) - expected_faulted
+    assert log.dropped and log.duplicated and log.reordered and expected_faulted   # faults happened
+    values = harness.fresh_diag()
+    assert values['state'] == 'inactive'
+    assert int(values['lost']) == expected_lost
+    assert int(values['duplicates']) == len(log.duplicated)
+    assert int(values['out_of_order']) == len(log.reordered)
+    assert int(values['faulted']) == expected_faulted
+    assert int(values['received']) == len(sent) + len(log.duplicated)
+    assert int(values['rejected_source']) == 3
+    assert int(values['published']) == expected_published
+    assert wait_for(lambda: len(harness.wrenches) == expected_published, 2.0), \
+        (len(harness.wrenches), expected_published)
+    assert all(m.wrench.force.x < 10 for m in harness.wrenches)      # no stranger's record
+
+
+def test_bias_service_zeroes_the_reading(harness):
+    with SimNetFtServer(lambda t: (0.5, 0.0, 2.0, 0.0, 0.0, 0.1), rate_hz=500.0) as server:
+        harness.start(server)
+        assert wait_for(lambda: harness.wrenches and harness.wrenches[-1].wrench.force.z == 2.0)
+        response = harness.call(names.FORCE_BIAS)
+        assert response.success, response.message
+        assert wait_for(lambda: server.requests['bias'] == 1)
+        n = len(harness.wrenches)
+        assert wait_for(lambda: len(harness.wrenches) > n + 50)
+        last = harness.wrenches[-1].wrench
+        assert (last.force.x, last.force.z, last.torque.z) == (0.0, 0.0, 0.0)
+
+
+def test_diagnostics_rate_and_no_data(harness):
+    with SimNetFtServer(source, rate_hz=400.0) as server:
+        harness.start(server)
+        wait_for(lambda: len(harness.wrenches) > 100)
+        values = harness.fresh_diag()
+        values = harness.fresh_diag()        # a whole period of streaming
+        assert values['_level'] == b'\x00', values
+        assert 340 <= float(values['rate_hz']) <= 460
+    # the server is gone: no data
+    assert wait_for(lambda: harness.fresh_diag()['_level'] == b'\x02', 4.0)
+
+
+def test_bad_parameters_are_refused(ros_context):
+    for overrides, match in (([Parameter('force_sign', value=0)], 'force_sign'),
+                             ([Parameter('counts_per_force', value=0.0)], 'counts_per_force'),
+                             ([Parameter('sensor_host', value='no such host.invalid')],
+                              'sensor host')):
+        with pytest.raises(ConfigError, match=match):
+            ForceSensorNode(context=ros_context, parameter_overrides=overrides)
+
+
+def test_config_file_lists_every_parameter(ros_context):
+    listed = yaml.safe_load(CONFIG.read_text())['force_sensor']['ros__parameters']
+    assert set(listed) == {f.name for f in fields(ForceSensorParams)}
+    node = ForceSensorNode(context=ros_context, cli_args=[
+        '--ros-args', '--params-file', str(CONFIG), '-p', 'autostart:=false'])
+    try:
+        assert node.params == ForceSensorParams(autostart=False)
+    finally:
+        node.destroy_node()

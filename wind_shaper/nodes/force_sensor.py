@@ -1,0 +1,243 @@
+"""force_sensor: ATI Net F/T RDT stream -> geometry_msgs/WrenchStamped (a lifecycle node).
+
+``wind_shaper.io.NetFtClient`` reads the sensor's UDP stream on its own thread; every good
+sample is published from that thread on ``/wind_shaper/force`` (QoS STREAM), stamped at
+reception with the node clock, in ``frame_id`` [N, N m]. Samples whose status word is nonzero
+(saturation, broken gage, ...) are not published but counted and logged. Service
+``/wind_shaper/force_sensor/bias`` (std_srvs/Trigger) zeroes the sensor's current reading.
+/diagnostics at 1 Hz: received / lost / out-of-order / duplicates / rejected-source / faulted /
+malformed counts and the measured publish rate.
+
+``force_sign`` -1 turns the readings 180 deg about the sensor's x axis (Fy, Fz, Ty, Tz change
+sign), for a sensor mounted upside down: the published +Fz is then up and the frame stays
+right-handed.
+
+Lifecycle: configure opens the UDP socket; activate asks the sensor to stream (and biases it
+with ``bias_on_start``); deactivate asks it to stop; cleanup / shutdown / destroy_node stop the
+stream and close the socket. With ``autostart`` (default) it configures and activates at start.
+Runs on the EventsExecutor: the stream does not go through the executor at all.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import WrenchStamped
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from std_srvs.srv import Trigger
+
+from ..core.errors import ConfigError
+from ..core.protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample
+from ..io import LinkConfigError, NetFtClient, NetFtStreamStats, TransportError
+from ..ros import diagnostics as diag
+from ..ros import names, qos
+from ..ros.params import declare_parameters, param
+from ..ros.runner import run
+
+
+@dataclass(frozen=True)
+class ForceSensorParams:
+    sensor_host: str = param('127.0.0.1', 'IP address or host name of the Net F/T sensor '
+                             '(ATI factory default 192.168.1.1)')
+    sensor_port: int = param(RDT_PORT, 'UDP port of the sensor RDT server', low=1, high=65535)
+    counts_per_force: float = param(1_000_000.0, 'counts per N (calcpf in the sensor '
+                                    'netftcalapi.xml) [counts/N]', low=1e-9)
+    counts_per_torque: float = param(1_000_000.0, 'counts per N m (calcpt) [counts/(N m)]',
+                                     low=1e-9)
+    frame_id: str = param(names.SENSOR_FRAME, 'frame_id of the published wrenches')
+    force_sign: int = param(1, '+1: sensor +z is up; -1: turn the readings 180 deg about x so '
+                            'the published +Fz is up', low=-1, high=1)
+    bias_on_start: bool = param(False, 'zero the sensor reading when streaming starts (only '
+                                'with the plate at rest and the fans off)')
+    autostart: bool = param(True, 'configure and activate at start (else wait for lifecycle '
+                            'transitions)')
+
+    def __post_init__(self):
+        if self.force_sign not in (-1, 1):
+            raise ConfigError(f'force_sign must be +1 or -1; got {self.force_sign}')
+        if not self.sensor_host:
+            raise ConfigError('sensor_host is empty: give the sensor IP address')
+        self.calibration()
+
+    def calibration(self) -> NetFtCalibration:
+        return NetFtCalibration(self.counts_per_force, self.counts_per_torque)
+
+
+_COUNTERS = ('received', 'lost', 'out_of_order', 'duplicates', 'rejected', 'faulted', 'malformed')
+
+
+class ForceSensorNode(LifecycleNode):
+    """Net F/T RDT in, WrenchStamped [N, N m, sensor frame] out; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__(names.FORCE_SENSOR, **kwargs)
+        self.params = p = declare_parameters(self, ForceSensorParams)
+        self._sign = float(p.force_sign)
+        self._client: NetFtClient | None = None
+        self._lock = threading.Lock()
+        self._state = 'unconfigured'
+        self._configure_error = ''
+        self._published = 0
+        self._last_sample: float | None = None        # time.monotonic() of the last good sample
+        self._last_fault = ''
+        self._reported = (time.monotonic(), 0, NetFtStreamStats())
+        self._pub = self.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+        self._pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
+        self.create_service(Trigger, names.FORCE_BIAS, self._handle_bias)
+        self.create_timer(1.0, self._on_diagnostics_timer)
+        if p.autostart:
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigError(f'force_sensor could not open its socket: '
+                                  f'{self._configure_error or "see the log"}')
+            if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigError(f'force_sensor could not start the stream from '
+                                  f'{p.sensor_host}:{p.sensor_port}: see the log')
+
+    # ---------------------------------------------------------------- lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.params
+        try:
+            client = NetFtClient(p.sensor_host, p.sensor_port, calibration=p.calibration(),
+                                 on_sample=self._on_sample)
+        except LinkConfigError as exc:
+            self._configure_error = str(exc)
+            self.get_logger().error(f'cannot configure: {exc}')
+            return TransitionCallbackReturn.FAILURE
+        with self._lock:
+            self._client = client
+            self._state = 'inactive'
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self.params
+        try:
+            with self._lock:
+                self._state = 'active'
+                self._published = 0
+                self._reported = (time.monotonic(), 0, NetFtStreamStats())
+                self._client.start()
+                if p.bias_on_start:
+                    self._client.bias()
+        except TransportError as exc:
+            self.get_logger().error(f'cannot start the stream: {exc}')
+            self._state = 'inactive'
+            return TransitionCallbackReturn.FAILURE
+        self.get_logger().info(f'streaming from {p.sensor_host}:{p.sensor_port}'
+                               + (' (biased)' if p.bias_on_start else ''))
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        with self._lock:
+            self._state = 'inactive'
+            client = self._client
+        try:
+            client.stop()
+        except TransportError as exc:
+            self.get_logger().warning(f'stop request not sent: {exc}')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close('cleanup')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close('shutdown')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._close('lifecycle error')
+        return TransitionCallbackReturn.SUCCESS
+
+    def destroy_node(self):
+        self._close('node destroyed')
+        super().destroy_node()
+
+    def _close(self, reason: str) -> None:
+        with self._lock:
+            self._state = 'unconfigured'
+            client, self._client = self._client, None
+        if client is not None:
+            client.close()     # stop request, reader thread joined, socket closed
+            self.get_logger().info(f'Net F/T stream closed ({reason})')
+
+    # ---------------------------------------------------------------- stream
+    def _on_sample(self, sample: NetFtSample, stats: NetFtStreamStats) -> None:
+        """On the client's reader thread, once per accepted record."""
+        if self._state != 'active':
+            return
+        if not sample.ok:
+            self._last_fault = sample.status_info.describe()
+            self.get_logger().warning(f'sensor fault, sample not published: {self._last_fault}',
+                                      throttle_duration_sec=2.0)
+            return
+        msg = WrenchStamped()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self.params.frame_id
+        (fx, fy, fz), (tx, ty, tz) = sample.force, sample.torque
+        s = self._sign
+        f, t = msg.wrench.force, msg.wrench.torque
+        f.x, f.y, f.z = fx, s * fy, s * fz
+        t.x, t.y, t.z = tx, s * ty, s * tz
+        self._pub.publish(msg)
+        self._published += 1
+        self._last_sample = time.monotonic()
+
+    # ---------------------------------------------------------------- services, diagnostics
+    def _handle_bias(self, request: Trigger.Request, response: Trigger.Response
+                     ) -> Trigger.Response:
+        client = self._client
+        if client is None or self._state != 'active':
+            response.success = False
+            response.message = f'force_sensor is {self._state}: activate it first'
+            return response
+        try:
+            client.bias()
+        except TransportError as exc:
+            response.success, response.message = False, str(exc)
+            return response
+        self.get_logger().info('bias request sent: the current reading is the new zero')
+        response.success = True
+        response.message = 'bias request sent to the sensor'
+        return response
+
+    def _on_diagnostics_timer(self) -> None:
+        now = time.monotonic()
+        client = self._client
+        stats = client.stats if client is not None else NetFtStreamStats()
+        published = self._published
+        t_prev, published_prev, stats_prev = self._reported
+        self._reported = (now, published, stats)
+        rate = (published - published_prev) / max(now - t_prev, 1e-9)
+        fresh = {k: getattr(stats, k) - getattr(stats_prev, k) for k in _COUNTERS}
+        age = None if self._last_sample is None else now - self._last_sample
+        values = {k: getattr(stats, k) for k in _COUNTERS}
+        values.update(state=self._state, published=published, rate_hz=rate,
+                      rejected_source=stats.rejected, stale=stats.stale, resyncs=stats.resyncs,
+                      last_sample_age_s='never' if age is None else age,
+                      last_fault=self._last_fault)
+        del values['rejected']
+        p = self.params
+        where = f'{p.sensor_host}:{p.sensor_port}'
+        if self._state != 'active':
+            level, message = diag.WARN, f'{self._state}: not streaming'
+        elif age is None or age > 1.0:
+            level, message = diag.ERROR, (f'no good samples from {where} for over 1 s: check the '
+                                          f'sensor address, network and status')
+        elif any(fresh[k] for k in ('lost', 'faulted', 'malformed', 'duplicates', 'rejected')):
+            level, message = diag.WARN, ', '.join(
+                f'{k} {fresh[k]}' for k in ('lost', 'faulted', 'malformed', 'duplicates',
+                                            'rejected') if fresh[k]) + ' in the last second'
+        else:
+            level, message = diag.OK, f'streaming at {rate:.0f} Hz'
+        self._pub_diag.publish(diag.array(self, diag.status(
+            f'{names.FORCE_SENSOR}: Net F/T', level, message, values, hardware_id=where)))
+
+
+def main(args=None):
+    return run(ForceSensorNode, args, executor='events')
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
