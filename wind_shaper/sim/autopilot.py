@@ -24,13 +24,12 @@ from __future__ import annotations
 import logging
 import math
 import os
-import select
-import socket
 import threading
 import time
 from typing import Callable
 
 os.environ.setdefault('MAVLINK20', '1')
+from .udp_peer import UdpPeer
 from ..core.protocols.errors import ProtocolConfigError  # noqa: E402
 from ..core.protocols.mavlink_fans import UINT16_MAX, mavlink  # noqa: E402
 
@@ -57,7 +56,7 @@ class _Writer:
             _log.debug('sim autopilot send failed: %s', exc)
 
 
-class SimAutopilot:
+class SimAutopilot(UdpPeer):
     """MAVLink 2 autopilot on UDP loopback for tests and the simulated tunnel.
 
     flavour: 'ardupilot' / 'px4' or a fan flavour name (``ardupilot_*`` / ``px4_*``), which only
@@ -65,6 +64,8 @@ class SimAutopilot:
     every servo starts at and falls back to; on_outputs({channel: us}): called on the
     simulator's thread whenever an applied pulse changes.
     """
+
+    thread_name = 'sim-autopilot'
 
     def __init__(self, host: str = '127.0.0.1', port: int = 0, *, flavour: str = 'ardupilot',
                  n_channels: int = 16,
@@ -94,8 +95,7 @@ class SimAutopilot:
         self._hb_period = 1.0 / heartbeat_hz
         self._so_period = 1.0 / servo_output_hz
 
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind((host, port))
+        self._open(host, port)
         self._peer = tuple(peer) if peer is not None else None
         self._mav = mavlink.MAVLink(_Writer(self), srcSystem=system_id, srcComponent=component_id)
         self._mav.robust_parsing = True
@@ -117,19 +117,9 @@ class SimAutopilot:
         self._t0 = time.monotonic()
         self.counts = dict(set_servo=0, set_actuator=0, rc_override=0, denied=0, unsupported=0,
                            bad_data=0, override_timeouts=0, heartbeats_sent=0, servo_outputs_sent=0)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='sim-autopilot', daemon=True)
-        self._thread.start()
+        self._start()
 
     # ---------------------------------------------------------------- public
-    @property
-    def address(self) -> tuple[str, int]:
-        return self._sock.getsockname()[:2]
-
-    @property
-    def port(self) -> int:
-        return self.address[1]
-
     @property
     def url(self) -> str:
         """pymavlink URL a client uses to reach this autopilot."""
@@ -158,20 +148,6 @@ class SimAutopilot:
     def restore_link(self) -> None:
         self._cut = False
 
-    def close(self, timeout_s: float = 2.0) -> None:
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        if self._thread is not threading.current_thread():
-            self._thread.join(timeout_s)
-        self._sock.close()
-
-    def __enter__(self) -> 'SimAutopilot':
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
     # ---------------------------------------------------------------- loop
     def _run(self) -> None:
         next_hb = next_so = time.monotonic()
@@ -185,18 +161,17 @@ class SimAutopilot:
                 self._send_servo_output()
             self._expire_override(now)
             timeout = min(max(0.0, min(next_hb, next_so) - time.monotonic()), 0.05)
-            try:
-                ready, _, _ = select.select([self._sock], [], [], timeout)
-            except (OSError, ValueError):
+            ready = self._wait_readable(timeout)
+            if ready is None:
                 break
             if ready:
                 self._receive()
 
     def _receive(self) -> None:
-        try:
-            data, addr = self._sock.recvfrom(65535)
-        except OSError:
+        got = self._recv(65535)
+        if got is None:
             return
+        data, addr = got
         if self._cut:
             return
         try:

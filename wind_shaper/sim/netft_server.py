@@ -20,13 +20,12 @@ from __future__ import annotations
 
 import logging
 import random
-import select
-import socket
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
+from .udp_peer import UdpPeer
 from ..core.protocols.errors import NetFtPacketError, ProtocolConfigError
 from ..core.protocols.netft import (INT32_MAX, NetFtCalibration, RdtCommand, RdtRecord,
                                     decode_request)
@@ -98,8 +97,10 @@ class _Log:
     late_skips: int = 0
 
 
-class SimNetFtServer:
+class SimNetFtServer(UdpPeer):
     """Simulated Net F/T on UDP: force_source(t [s]) -> 6 floats [N, N m]."""
+
+    thread_name = 'sim-netft'
 
     def __init__(self, force_source: Callable[[float], Sequence[float]], host: str = '127.0.0.1',
                  port: int = 0, rate_hz: float = 1000.0, counts_per_force: float = 1_000_000.0,
@@ -130,22 +131,10 @@ class SimNetFtServer:
         self._held: tuple[int, bytes] | None = None
         self.requests = dict(start=0, stop=0, bias=0, unknown=0, malformed=0)
         self.source_errors = 0
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
-        self._sock.bind((host, port))
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='sim-netft', daemon=True)
-        self._thread.start()
+        self._open(host, port, send_buffer=1 << 20)
+        self._start()
 
     # ---------------------------------------------------------------- public
-    @property
-    def address(self) -> tuple[str, int]:
-        return self._sock.getsockname()[:2]
-
-    @property
-    def port(self) -> int:
-        return self.address[1]
-
     @property
     def streaming(self) -> bool:
         return self._streaming
@@ -173,23 +162,11 @@ class SimNetFtServer:
             time.sleep(0.005)
         return False
 
-    def close(self, timeout_s: float = 2.0) -> None:
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        if self._thread is not threading.current_thread():
-            self._thread.join(timeout_s)
-        with self._lock:
+    def _on_close(self) -> None:
+        with self._lock:  # a record held back for reordering was never sent
             if self._held is not None:
                 self._log.unsent.append(self._held[0])
                 self._held = None
-        self._sock.close()
-
-    def __enter__(self) -> 'SimNetFtServer':
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     # ---------------------------------------------------------------- loop
     def _run(self) -> None:
@@ -201,18 +178,17 @@ class SimNetFtServer:
                 if self._streaming:
                     timeout = min(timeout, max(0.0, self._t_start + self._k * period
                                                - time.monotonic()))
-            try:
-                ready, _, _ = select.select([self._sock], [], [], timeout)
-            except (OSError, ValueError):
+            ready = self._wait_readable(timeout)
+            if ready is None:
                 break
             if ready:
                 self._receive()
 
     def _receive(self) -> None:
-        try:
-            data, addr = self._sock.recvfrom(2048)
-        except OSError:
+        got = self._recv(2048)
+        if got is None:
             return
+        data, addr = got
         try:
             request = decode_request(data)
         except NetFtPacketError as exc:
