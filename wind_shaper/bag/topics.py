@@ -1,0 +1,84 @@
+"""The graph's topics a sweep bag carries, with their types and the QoS their publishers offer.
+
+Names come from ``wind_shaper.ros.names`` (the graph contract; that module imports no rclpy).
+The QoS here mirrors ``wind_shaper.ros.qos`` without importing rclpy: it is written into a bag's
+metadata as the offered QoS of bags made by ``write_sweep_bag``, and the player uses it for a
+topic whose bag metadata has none. The recorder stores what the live publishers really offer.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..ros import names
+from . import types
+
+
+#: RMW_DURATION_INFINITE as (sec, nsec), the way Jazzy's rosbag2 writes an infinite
+#: deadline / lifespan / lease duration into metadata.yaml.
+INFINITE_TIME = (9223372036, 854775807)
+
+
+def qos_time(nanoseconds: int) -> tuple[int, int]:
+    """(sec, nsec) of a QoS duration [ns]; infinite (>= 2**63 - 1 ns) as INFINITE_TIME."""
+    ns = int(nanoseconds)
+    return INFINITE_TIME if ns >= 2 ** 63 - 1 else (ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+@dataclass(frozen=True)
+class TopicQos:
+    """A QoS profile in plain terms: reliable (else best effort), transient_local (latched;
+    else volatile), depth (KEEP_LAST history depth)."""
+
+    reliable: bool = True
+    transient_local: bool = False
+    depth: int = 10
+
+    def to_rosbags(self):
+        """The rosbags ``Qos`` of this profile (infinite deadline/lifespan/lease, automatic
+        liveliness: what rclpy publishers offer by default)."""
+        from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                        QosReliability, QosTime)
+        infinite = QosTime(*INFINITE_TIME)
+        return Qos(QosHistory.KEEP_LAST, int(self.depth),
+                   QosReliability.RELIABLE if self.reliable else QosReliability.BEST_EFFORT,
+                   QosDurability.TRANSIENT_LOCAL if self.transient_local else QosDurability.VOLATILE,
+                   infinite, infinite, QosLiveliness.AUTOMATIC, infinite, False)
+
+    @classmethod
+    def from_rosbags(cls, qos) -> 'TopicQos':
+        from rosbags.interfaces import QosDurability, QosReliability
+        return cls(reliable=qos.reliability != QosReliability.BEST_EFFORT,
+                   transient_local=qos.durability == QosDurability.TRANSIENT_LOCAL,
+                   depth=max(int(qos.depth), 1))
+
+
+STREAM = TopicQos(reliable=True, transient_local=False, depth=100)
+COMMAND = TopicQos(reliable=True, transient_local=False, depth=10)
+LATCHED = TopicQos(reliable=True, transient_local=True, depth=1)
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A topic of the graph: name, registered type name ('pkg/msg/Type') and offered QoS."""
+
+    name: str
+    msgtype: str
+    qos: TopicQos
+
+
+#: The topics of a sweep, in the order a bag lists them.
+SWEEP_TOPICS: dict[str, TopicSpec] = {spec.name: spec for spec in (
+    TopicSpec(names.FORCE, types.WRENCH_STAMPED, STREAM),
+    TopicSpec(names.PLATE_POSE, types.POSE_STAMPED, STREAM),
+    TopicSpec(names.MOCAP_POSE, types.POSE_STAMPED, STREAM),
+    TopicSpec(names.FAN_COMMAND, types.FAN_COMMAND, LATCHED),
+    TopicSpec(names.FAN_APPLIED, types.FAN_COMMAND, LATCHED),
+    TopicSpec(names.FIELD, types.FIELD_ESTIMATE, LATCHED),
+    TopicSpec(names.STATUS, types.ITERATION_STATUS, LATCHED),
+)}
+
+#: Other graph topics the recorder and player know the type of.
+KNOWN_TOPICS: dict[str, TopicSpec] = {
+    **SWEEP_TOPICS,
+    names.DIAGNOSTICS: TopicSpec(names.DIAGNOSTICS, types.DIAGNOSTIC_ARRAY, COMMAND),
+}
