@@ -1,0 +1,322 @@
+"""sim_tunnel node: the simulated tunnel behind the rig's own protocols, on 127.0.0.1 only.
+
+Plays the rig so that fan_output, force_sensor and mocap_relay run unchanged against it:
+
+* a MAVLink 2 autopilot on UDP ``127.0.0.1:mavlink_port`` (``SimAutopilot``): the pulses it
+  applies [us] are mapped back to PWM fractions with the same channel map as fan_output
+  (``fan_names``, ``channels``, ``pwm_min_us``, ``pwm_max_us``) and applied to the plant;
+* an ATI Net F/T RDT server on UDP ``127.0.0.1:netft_port`` (``SimNetFtServer``) streaming at
+  ``netft_rate_hz`` the plant's vertical plate force [N] (Fz, sensor frame, positive up) at the
+  plate's current position: the true plate-averaged field plus the simulator's noise model;
+* ``geometry_msgs/PoseStamped`` of the plate's tracked rigid body on ``/vrpn_mocap/plate/pose``
+  at ``mocap_rate_hz`` in the mocap frame (stamped with capture time): pose =
+  inverse(tunnel_from_mocap) * plate * inverse(plate_offset), with the noise model's jitter, so
+  the mocap_relay with the same parameters gets the plate centre back in the tunnel frame;
+* service ``/wind_shaper/tunnel/sweep`` (``wind_shaper_msgs/Sweep``): moves the plate along the
+  simulator's sweep path in real time, sped up to cover the sweep disc in ``duration_s``, and
+  returns when it is back at ``rest_position`` (outside the key-point disc);
+* ``/diagnostics`` once per ``diagnostics_period_s``.
+
+The plant, the sweep planning and the frames are pure code in ``wind_shaper.sim.live``.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from wind_shaper_msgs.srv import Sweep
+
+from ..app import Setup
+from ..core.errors import ConfigError, WindShaperError
+from ..core.protocols.errors import ProtocolConfigError
+from ..core.protocols.mavlink_fans import FanChannel, FanChannelMap
+from ..ros import names, qos
+from ..ros.convert import seconds_to_stamp
+from ..ros.params import declare_parameters, param
+from ..ros.runner import run
+from ..sim import SimAutopilot, SimNetFtServer
+from ..sim.live import LiveTunnel, MocapFrame
+
+HOST = '127.0.0.1'   # the simulated rig never listens beyond loopback
+_PAPER_FANS = ('LM1', 'HM1', 'LM2', 'HM2', 'LM3', 'HM3', 'CM')
+
+
+def _clock_offset() -> float:
+    """ROS (system) clock minus the monotonic clock [s], from the tightest of a few readings."""
+    best = None
+    for _ in range(20):
+        a = time.monotonic()
+        wall = time.time()
+        b = time.monotonic()
+        if best is None or b - a < best[0]:
+            best = (b - a, wall - 0.5 * (a + b))
+    return best[1]
+
+
+@dataclass(frozen=True)
+class SimTunnelParams:
+    config_dir: str = param('', 'folder holding tunnel.yaml and sim.yaml ("" = the shipped config)')
+    seed: int = param(-1, 'simulator seed of sweeps and noise; -1 = the seed in sim.yaml', low=-1)
+    mavlink_port: int = param(14550, 'UDP port of the simulated autopilot on 127.0.0.1 '
+                              '(0 = any free port)', low=0, high=65535)
+    flavour: str = param('ardupilot_servo', 'autopilot flavour: ardupilot_servo, '
+                         'ardupilot_rc_override or px4_actuator (only the HEARTBEAT differs)')
+    fan_names: tuple = param(_PAPER_FANS, 'fans on the autopilot outputs, as in tunnel.yaml '
+                             '(same as fan_output)', array_of=str)
+    channels: tuple = param(tuple(range(1, 8)), 'servo output (1..16) of each fan in fan_names '
+                            '(same as fan_output)', array_of=int)
+    pwm_min_us: int = param(1000, 'pulse at PWM fraction 0 [us] (same as fan_output)', low=1, high=5000)
+    pwm_max_us: int = param(2000, 'pulse at PWM fraction 1 [us] (same as fan_output)', low=1, high=5000)
+    netft_port: int = param(49152, 'UDP port of the simulated Net F/T on 127.0.0.1 (0 = any free '
+                            'port)', low=0, high=65535)
+    netft_rate_hz: float = param(1000.0, 'RDT record rate [Hz]', low=1.0, high=7000.0)
+    counts_per_force: float = param(1_000_000.0, 'sensor counts per N (same as force_sensor)', low=1.0)
+    counts_per_torque: float = param(1_000_000.0, 'sensor counts per N m (same as force_sensor)', low=1.0)
+    mocap_topic: str = param(names.MOCAP_POSE, 'raw mocap pose topic (geometry_msgs/PoseStamped)')
+    mocap_frame: str = param('mocap', 'frame_id of the mocap poses')
+    mocap_rate_hz: float = param(100.0, 'mocap pose rate [Hz]', low=1.0, high=1000.0)
+    tunnel_from_mocap: tuple = param((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+                                     'pose of the mocap frame in the tunnel frame: tx ty tz [m] '
+                                     'qx qy qz qw (same as mocap_relay)', array_of=float)
+    plate_offset: tuple = param((0.0, 0.0, 0.0), 'rigid body origin -> plate centre in the body '
+                                'frame [m] (same as mocap_relay)', array_of=float)
+    plate_height_m: float = param(0.35, 'height of the measurement plane above the fan plane '
+                                  '(tunnel z of the plate centre) [m]')
+    rest_position: tuple = param((0.0, -0.34), 'where the plate waits between sweeps, x y '
+                                 '[m, tunnel frame]; outside the key-point disc', array_of=float)
+    transit_s: float = param(0.3, 'shortest move between the rest position and the sweep path [s] '
+                             '(longer if max_sweep_speed needs; at most 25 % of a sweep)',
+                             low=0.0, high=10.0)
+    max_sweep_speed: float = param(2.5, 'fastest plate speed of a sweep [m/s]; a sweep too short '
+                                   'to cover the disc at it uses wider lanes', low=0.01)
+    max_sweep_duration_s: float = param(600.0, 'longest sweep accepted [s]', low=0.1)
+    force_grid_step_m: float = param(0.01, 'pitch of the tabulated force field [m]',
+                                     low=0.001, high=0.05)
+    diagnostics_period_s: float = param(1.0, 'period of /diagnostics [s]', low=0.1, high=60.0)
+
+    def __post_init__(self):
+        if len(self.fan_names) != len(self.channels):
+            raise ConfigError(f'fan_names has {len(self.fan_names)} entries but channels '
+                              f'{len(self.channels)}: give one servo output per fan')
+        if not self.pwm_min_us < self.pwm_max_us:
+            raise ConfigError(f'pwm_min_us {self.pwm_min_us} must be below pwm_max_us {self.pwm_max_us}')
+        if len(self.tunnel_from_mocap) != 7:
+            raise ConfigError('tunnel_from_mocap needs 7 numbers: tx ty tz qx qy qz qw')
+        if len(self.plate_offset) != 3:
+            raise ConfigError('plate_offset needs 3 numbers: x y z [m]')
+        if len(self.rest_position) != 2:
+            raise ConfigError('rest_position needs 2 numbers: x y [m]')
+
+
+class SimTunnel(Node):
+    """The simulated rig (see the module docstring)."""
+
+    def __init__(self, **kwargs):
+        super().__init__(names.SIM_TUNNEL, **kwargs)
+        self.params = p = declare_parameters(self, SimTunnelParams)
+        setup = Setup.load(p.config_dir or None)
+        sim = setup.make_sim(seed=None if p.seed < 0 else p.seed)
+        self.fan_names = list(setup.geometry.fans.names)
+        unknown = [n for n in p.fan_names if n not in self.fan_names]
+        if unknown:
+            raise ConfigError(f'fan_names {unknown} are not fans of {setup.config_dir}/tunnel.yaml '
+                              f'({", ".join(self.fan_names)}); fix fan_names in config/sim_tunnel.yaml')
+        try:
+            self.channel_map = FanChannelMap(
+                FanChannel(name, int(ch), p.pwm_min_us, p.pwm_max_us, p.pwm_min_us)
+                for name, ch in zip(p.fan_names, p.channels))
+        except ProtocolConfigError as exc:
+            raise ConfigError(f'channel map: {exc}') from None
+        unmapped = [n for n in self.fan_names if n not in p.fan_names]
+        if unmapped:
+            self.get_logger().warn(f'fans {unmapped} have no autopilot output: they stay off')
+        self.live = LiveTunnel(sim, p.rest_position, grid_step=p.force_grid_step_m,
+                               force_rate_hz=p.netft_rate_hz, transit_s=p.transit_s,
+                               max_speed=p.max_sweep_speed)
+        self.live.start_worker()
+        self._mocap_tf = MocapFrame(p.tunnel_from_mocap, p.plate_offset)
+        self._index = {n: i for i, n in enumerate(self.fan_names)}
+        self._stop = threading.Event()
+        self.mocap_published = 0
+        self.sweeps_done = 0
+        self._autopilot = self._netft = None
+        try:
+            self._autopilot = SimAutopilot(HOST, p.mavlink_port, flavour=p.flavour, n_channels=16,
+                                           on_outputs=self._on_outputs, safe_us=p.pwm_min_us,
+                                           pwm_min_us=p.pwm_min_us, pwm_max_us=p.pwm_max_us)
+            self._netft = SimNetFtServer(self._force_source, HOST, p.netft_port, p.netft_rate_hz,
+                                         p.counts_per_force, p.counts_per_torque)
+        except OSError as exc:
+            self._close_links()
+            raise ConfigError(f'cannot open the simulated rig on {HOST} (MAVLink port '
+                              f'{p.mavlink_port}, Net F/T port {p.netft_port}): {exc}; another '
+                              f'sim_tunnel may be running: stop it or change the ports') from None
+        except ProtocolConfigError as exc:
+            self._close_links()
+            raise ConfigError(str(exc)) from None
+
+        self._pose_pub = self.create_publisher(PoseStamped, p.mocap_topic, qos.STREAM)
+        self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
+        self.create_service(Sweep, names.SWEEP, self._handle_sweep,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
+        self._mocap_thread = threading.Thread(target=self._mocap_loop, name='sim-mocap', daemon=True)
+        self._mocap_thread.start()
+        self.get_logger().info(
+            f'simulated tunnel ({len(self.fan_names)} fans, seed {sim.seed}): MAVLink autopilot '
+            f'udp {HOST}:{self.mavlink_port} ({p.flavour}), Net F/T udp {HOST}:{self.netft_port} '
+            f'at {p.netft_rate_hz:g} Hz, mocap {p.mocap_topic} at {p.mocap_rate_hz:g} Hz, sweep '
+            f'service {names.SWEEP}')
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def mavlink_port(self) -> int:
+        return self._autopilot.port
+
+    @property
+    def netft_port(self) -> int:
+        return self._netft.port
+
+    # ------------------------------------------------------------------ rig peers
+    def _on_outputs(self, pulses: dict[int, int]) -> None:
+        """Autopilot thread: applied pulses {channel: us} -> fractions -> the plant."""
+        fractions = self.channel_map.fractions_from_pulses(pulses)
+        pwm = np.zeros(len(self.fan_names))
+        for name, u in fractions.items():
+            pwm[self._index[name]] = u
+        self.live.apply(pwm)
+
+    def _force_source(self, t: float):
+        """Net F/T thread: (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]) on the plate now."""
+        return 0.0, 0.0, self.live.force(), 0.0, 0.0, 0.0
+
+    def _mocap_loop(self) -> None:
+        """Camera frames at exact ticks k / mocap_rate_hz: each pose is the plate at its tick,
+        stamped with the tick (capture time), published as soon as the thread gets to it (a late
+        thread adds latency, not jitter; more than 10 frames behind, it drops frames)."""
+        period = 1.0 / self.params.mocap_rate_hz
+        tick = time.monotonic()
+        clock_offset, next_sync = _clock_offset(), tick + 5.0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now < tick:
+                self._stop.wait(tick - now)
+                continue
+            if now - tick > 10 * period:
+                tick += period * int((now - tick) / period)
+            if now > next_sync:   # follow a step of the system clock (not reading jitter)
+                fresh, next_sync = _clock_offset(), now + 5.0
+                if abs(fresh - clock_offset) > 0.1:
+                    self.get_logger().warn(f'system clock stepped by {fresh - clock_offset:+.3f} s')
+                    clock_offset = fresh
+            try:
+                self._publish_mocap(tick, tick + clock_offset)
+            except Exception as exc:   # e.g. the context shut down under us
+                if not self._stop.is_set():
+                    self.get_logger().error(f'mocap publish failed: {exc}')
+                return
+            tick += period
+
+    def _publish_mocap(self, t: float, stamp_s: float) -> None:
+        """One pose of the plate at monotonic time t [s], stamped stamp_s [s, ROS clock]: the
+        stamp and the position belong to the same instant."""
+        reading = self.live.mocap_position(t)
+        if reading is None:   # a dropout: the mocap sends nothing
+            return
+        p = self.params
+        pos, quat = self._mocap_tf.body_pose((reading[0], reading[1], p.plate_height_m))
+        msg = PoseStamped()
+        msg.header.stamp = seconds_to_stamp(stamp_s)
+        msg.header.frame_id = p.mocap_frame
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = pos
+        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+         msg.pose.orientation.w) = quat
+        self._pose_pub.publish(msg)
+        self.mocap_published += 1
+
+    # ------------------------------------------------------------------ services
+    def _handle_sweep(self, request: Sweep.Request, response: Sweep.Response) -> Sweep.Response:
+        limit = self.params.max_sweep_duration_s
+        if not 0 < request.duration_s <= limit:
+            response.success = False
+            response.message = (f'duration_s must be in (0, {limit:g}] s; got {request.duration_s:g} '
+                                f'(the limit is the max_sweep_duration_s parameter)')
+            return response
+        t_start = time.monotonic()
+        try:
+            motion = self.live.start_sweep(request.duration_s, int(request.seed))
+        except WindShaperError as exc:
+            response.success = False
+            response.message = str(exc)
+            return response
+        self.get_logger().info(f'sweep of {request.duration_s:g} s started')
+        while not self._stop.is_set():
+            left = motion.end - time.monotonic()
+            if left <= 0:
+                break
+            self._stop.wait(min(left, 0.05))
+        response.duration_s = time.monotonic() - t_start
+        if self._stop.is_set():
+            self.live.stop_sweep()
+            response.success = False
+            response.message = 'the sim_tunnel node is shutting down; the sweep was cut short'
+            return response
+        self.sweeps_done += 1
+        response.success = True
+        response.message = f'swept for {response.duration_s:.2f} s; the plate is back at rest'
+        return response
+
+    # ------------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self) -> None:
+        live = self.live
+        x, y = live.position()
+        ap, ft = self._autopilot, self._netft
+        values = {
+            'pwm': ' '.join(f'{n}={u:.3f}' for n, u in zip(self.fan_names, live.pwm)),
+            'force_field_current': str(live.field_current),
+            'plate_position_m': f'{x:.3f} {y:.3f}',
+            'sweeping': str(live.sweeping()),
+            'sweeps_done': str(self.sweeps_done),
+            'mavlink_peer': str(ap.peer),
+            'netft_client': str(ft.client),
+            'netft_streaming': str(ft.streaming),
+            'netft_records': str(ft.fault_log().generated),
+            'mocap_published': str(self.mocap_published),
+        }
+        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{names.SIM_TUNNEL}: simulated rig',
+                                  hardware_id='sim', message='running',
+                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        if not live.field_current:
+            status.message = 'force field being recomputed for new fan commands'
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(msg)
+
+    # ------------------------------------------------------------------ shutdown
+    def _close_links(self) -> None:
+        for link in (self._autopilot, self._netft):
+            if link is not None:
+                link.close()
+        self.live.close()
+
+    def destroy_node(self):
+        self._stop.set()
+        thread = getattr(self, '_mocap_thread', None)
+        if thread is not None:
+            thread.join(2.0)
+        self._close_links()
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    return run(SimTunnel, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
