@@ -11,6 +11,9 @@ No ROS here: the field estimator node feeds it arrays taken from its message buf
 """
 from __future__ import annotations
 
+import threading
+from collections import deque
+
 import numpy as np
 
 from .errors import SweepError
@@ -91,4 +94,50 @@ def align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm=(), *, period: float
                  np.asarray(pwm, dtype=float))
 
 
-__all__ = ['align_sweep', 'pose_period', 'MIN_OVERLAP']
+class SampleBuffer:
+    """Thread-safe buffer of stamped samples (t [s], v_1..v_n) keeping the newest ``max_span_s``.
+
+    Stream callbacks ``append`` from one thread while a service takes ``arrays()`` from another.
+    When the newest stamp is more than ``max_span_s`` [s] after the oldest, the oldest rows are
+    dropped (and counted in ``dropped``), so a sweep nobody ends cannot fill the memory.
+    """
+
+    def __init__(self, n_values: int, max_span_s: float):
+        if not max_span_s > 0:
+            raise SweepError(f'a sample buffer needs max_span_s > 0 s, got {max_span_s}')
+        self.n_values = int(n_values)
+        self.max_span_s = float(max_span_s)
+        self._rows: deque = deque()
+        self._newest = -np.inf
+        self._lock = threading.Lock()
+        self.dropped = 0
+
+    def append(self, t: float, *values: float) -> None:
+        if len(values) != self.n_values:
+            raise ValueError(f'expected {self.n_values} values per sample, got {len(values)}')
+        with self._lock:
+            self._rows.append((t, *values))
+            if t > self._newest:
+                self._newest = t
+            limit = self._newest - self.max_span_s
+            while self._rows and self._rows[0][0] < limit:
+                self._rows.popleft()
+                self.dropped += 1
+
+    def clear(self) -> None:
+        with self._lock:
+            self._rows.clear()
+            self._newest = -np.inf
+            self.dropped = 0
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """(t, v_1, ..., v_n), each (rows,) float, in arrival order (a copy)."""
+        with self._lock:
+            rows = np.array(self._rows, dtype=float).reshape(-1, 1 + self.n_values)
+        return tuple(rows[:, i].copy() for i in range(rows.shape[1]))
+
+
+__all__ = ['align_sweep', 'pose_period', 'SampleBuffer', 'MIN_OVERLAP']

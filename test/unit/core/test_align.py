@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from wind_shaper.core.align import align_sweep, pose_period
+from wind_shaper.core.align import SampleBuffer, align_sweep, pose_period
 from wind_shaper.core.errors import SweepError
 
 FORCE_HZ, POSE_HZ = 1000.0, 100.0
@@ -116,3 +116,37 @@ def test_empty_or_mismatched_streams_say_what_is_missing():
         align_sweep(ft, fz[:-1], pt, pose[:, 0], pose[:, 1])
     with pytest.raises(SweepError, match='period'):
         align_sweep(ft, fz, pt, pose[:, 0], pose[:, 1], period=0.0)
+
+
+def test_sample_buffer_keeps_the_newest_span_and_copies_out():
+    buf = SampleBuffer(2, max_span_s=1.0)
+    dt = 1 / 64  # exact in binary: the span test has no rounding
+    for i in range(300):
+        buf.append(i * dt, float(i), -float(i))
+    t, a, b = buf.arrays()
+    # newest 299/64 s: rows older than 1 s before it (i < 235) are dropped
+    assert len(buf) == 65 and buf.dropped == 235
+    assert t[0] == 235 * dt and t[-1] == 299 * dt
+    np.testing.assert_array_equal(b, -a)
+    t[:] = 0  # a copy: the buffer is untouched
+    assert buf.arrays()[0][-1] == 299 * dt
+    buf.clear()
+    assert len(buf) == 0 and [len(x) for x in buf.arrays()] == [0, 0, 0]
+    with pytest.raises(ValueError, match='2 values'):
+        buf.append(0.0, 1.0)
+
+
+def test_sample_buffer_takes_appends_from_many_threads():
+    import threading
+    buf = SampleBuffer(1, max_span_s=1e9)
+
+    def fill(offset):
+        for i in range(2000):
+            buf.append(offset + i, 1.0)
+
+    threads = [threading.Thread(target=fill, args=(k * 10_000,)) for k in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join(timeout=10)
+    assert len(buf) == 8000 and buf.arrays()[1].sum() == 8000

@@ -1,0 +1,250 @@
+"""field_estimator in-process: sweeps of simulated-tunnel force and pose -> the core's field."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from wind_shaper_msgs.msg import FieldEstimate  # noqa: E402
+from wind_shaper_msgs.srv import EstimateField  # noqa: E402
+
+from wind_shaper.app import Setup  # noqa: E402
+from wind_shaper.core.align import align_sweep  # noqa: E402
+from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
+from wind_shaper.ros import names, qos  # noqa: E402
+from wind_shaper.ros.convert import estimate_from_msg, seconds_to_stamp, sweep_from_msg  # noqa: E402
+from wind_shaper.sim.paths import TourPath  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+WAIT_S = 10.0          # bound on every wait: a broken node fails the test in seconds
+FORCE_PER_POSE = 4     # force samples per pose period (400 Hz force for 100 Hz poses)
+POSE_DT = 0.01         # pose period [s]
+U = np.array([0.5, 0.45, 0.55, 0.5, 0.4, 0.6, 0.3])
+
+
+@pytest.fixture(scope='module')
+def setup():
+    return Setup.load()
+
+
+@pytest.fixture(scope='module')
+def sim(setup):
+    return setup.make_sim(seed=5)
+
+
+def sweep_streams(sim, n_poses=400, t_start=1000.0, half_disc=False, seed=0):
+    """Force (400 Hz) and plate pose (100 Hz) of a sweep over the simulated tunnel at U.
+
+    The plate follows a tour of the sweep disc (sped up so 4 s of stamps cover it); the force at
+    each force stamp is the simulator's true plate force at the plate's position then, plus
+    noise. Pose stamps sit in the middle of their 4 force samples."""
+    rng = np.random.default_rng(seed)
+    dt = POSE_DT / FORCE_PER_POSE
+    n = n_poses * FORCE_PER_POSE
+    xy = TourPath(speed=3.0)(n, dt, sim.geometry.sweep_radius, rng)
+    if half_disc:
+        xy[:, 0] = -np.abs(xy[:, 0])  # the plate never crosses to x > 0
+    force_t = t_start + np.arange(n) * dt
+    force = sim.true_field(U, xy) + rng.normal(0, 0.03, n)
+    idx = np.arange(n_poses) * FORCE_PER_POSE + 1
+    pose_t = force_t[idx] + dt / 2
+    return force_t, force, pose_t, xy[idx]
+
+
+class Harness:
+    """The node under test and a helper node (publishers, clients) on one spinning executor."""
+
+    def __init__(self, context, overrides=()):
+        self.node = FieldEstimatorNode(context=context, parameter_overrides=list(overrides))
+        self.peer = rclpy.create_node('field_estimator_test_peer', context=context)
+        self.force_pub = self.peer.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+        self.pose_pub = self.peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
+        self.begin = self.peer.create_client(Trigger, names.BEGIN_SWEEP)
+        self.estimate = self.peer.create_client(EstimateField, names.ESTIMATE_FIELD)
+        self.fields = []
+        self.peer.create_subscription(FieldEstimate, names.FIELD, self.fields.append, qos.LATCHED)
+        self.executor = MultiThreadedExecutor(num_threads=3, context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        assert self.begin.wait_for_service(timeout_sec=WAIT_S)
+        assert self.estimate.wait_for_service(timeout_sec=WAIT_S)
+        assert wait_until(lambda: self.force_pub.get_subscription_count() == 1
+                          and self.pose_pub.get_subscription_count() == 1)
+
+    def call(self, client, request):
+        future = client.call_async(request)
+        assert wait_until(future.done), f'{client.srv_name} did not answer within {WAIT_S} s'
+        return future.result()
+
+    def begin_sweep(self):
+        return self.call(self.begin, Trigger.Request())
+
+    def estimate_field(self, iteration=0, fan_names=None, pwm=U):
+        names_ = list(fan_names if fan_names is not None else self.node._fan_names)
+        return self.call(self.estimate, EstimateField.Request(
+            iteration=iteration, fan_names=names_, pwm=[float(u) for u in pwm]))
+
+    def publish(self, force_t, force, pose_t, pose_xy, expect_buffered=True):
+        """Publish the streams in time order, in chunks the node keeps up with (KEEP_LAST
+        queues drop what a subscriber has not taken yet, and this test counts every sample)."""
+        rows = sorted([(t, 0, f, 0.0) for t, f in zip(force_t, force)]
+                      + [(t, 1, x, y) for t, (x, y) in zip(pose_t, pose_xy)])
+        n_force = n_pose = 0
+        for start in range(0, len(rows), 50):
+            for t, kind, a, b in rows[start:start + 50]:
+                if kind == 0:
+                    msg = WrenchStamped()
+                    msg.header.stamp = seconds_to_stamp(t)
+                    msg.wrench.force.z = float(a)
+                    self.force_pub.publish(msg)
+                    n_force += 1
+                else:
+                    msg = PoseStamped()
+                    msg.header.stamp = seconds_to_stamp(t)
+                    msg.header.frame_id = names.TUNNEL_FRAME
+                    msg.pose.position.x, msg.pose.position.y = float(a), float(b)
+                    msg.pose.orientation.w = 1.0
+                    self.pose_pub.publish(msg)
+                    n_pose += 1
+            if expect_buffered:
+                assert wait_until(lambda: (len(self.node._force), len(self.node._pose))
+                                  == (n_force, n_pose)), 'the node lost stream samples'
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=WAIT_S)
+        self.thread.join(timeout=WAIT_S)
+        self.node.destroy_node()
+        self.peer.destroy_node()
+
+
+def wait_until(predicate, timeout=WAIT_S, period=0.005):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period)
+    return bool(predicate())
+
+
+@pytest.fixture
+def harness(ros_context):
+    h = Harness(ros_context)
+    yield h
+    h.close()
+
+
+def stamp_seconds(stamp):
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def test_estimate_is_the_core_estimate_of_the_aligned_pairs(harness, sim, setup):
+    streams = sweep_streams(sim)
+    assert harness.begin_sweep().success
+    harness.publish(*streams)
+    resp = harness.estimate_field(iteration=3)
+    assert resp.success, resp.message
+    force_t, force, pose_t, pose_xy = streams
+    # the pairs are core.align's pairs of exactly what was published: one per pose
+    expected = align_sweep(force_t, force, pose_t, pose_xy[:, 0], pose_xy[:, 1], U)
+    got = sweep_from_msg(resp.samples)
+    assert len(got) == len(pose_t) == 400
+    np.testing.assert_array_equal(got.positions, expected.positions)
+    np.testing.assert_allclose(got.forces, expected.forces, rtol=0, atol=1e-12)
+    # stamps survive the message round trip to well under a microsecond
+    np.testing.assert_allclose(got.times, expected.times, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(got.pwm, U)
+    # and the field is the core FieldEstimator's on those pairs, to float precision
+    core = setup.shaping.make_estimator().estimate(got, setup.geometry.key_points)
+    kp, mean, std = estimate_from_msg(resp.estimate)
+    np.testing.assert_array_equal(kp, setup.geometry.key_points)
+    np.testing.assert_allclose(mean, core.mean, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(std, core.std, rtol=1e-12, atol=1e-12)
+    assert resp.estimate.n_used == core.n_used and resp.estimate.n_samples == 400
+    assert resp.estimate.iteration == resp.samples.iteration == 3
+    assert list(resp.estimate.pwm) == list(U)
+    assert resp.estimate.header.frame_id == names.TUNNEL_FRAME
+    assert stamp_seconds(resp.samples.header.stamp) == pytest.approx(pose_t[0], abs=1e-6)
+    assert stamp_seconds(resp.estimate.header.stamp) == pytest.approx(pose_t[-1], abs=1e-6)
+    # a real field: close to the simulator's truth at the key points
+    truth = sim.true_field(U, setup.geometry.key_points)
+    assert np.sqrt(np.mean((mean - truth) ** 2)) < 0.1
+    # published latched on /wind_shaper/field
+    assert wait_until(lambda: len(harness.fields) == 1)
+    np.testing.assert_array_equal(harness.fields[0].mean, resp.estimate.mean)
+
+
+def test_collection_stops_at_estimate_and_restarts_at_begin(harness, sim):
+    streams = sweep_streams(sim, seed=1)
+    harness.begin_sweep()
+    harness.publish(*streams)
+    assert harness.estimate_field().success
+    later = sweep_streams(sim, n_poses=50, t_start=2000.0, seed=2)
+    harness.publish(*later, expect_buffered=False)
+    time.sleep(0.2)
+    assert (len(harness.node._force), len(harness.node._pose)) == (1600, 400)  # nothing added
+    harness.begin_sweep()
+    assert (len(harness.node._force), len(harness.node._pose)) == (0, 0)
+
+
+def test_estimate_without_a_sweep_says_to_begin_one(harness):
+    resp = harness.estimate_field()
+    assert not resp.success and 'call begin_sweep' in resp.message
+
+
+def test_no_samples_fails_and_collection_goes_on(harness, sim):
+    harness.begin_sweep()
+    resp = harness.estimate_field()
+    assert not resp.success
+    assert 'no finite force sample' in resp.message and '0 force and 0 pose' in resp.message
+    # state unchanged: still collecting, so the sweep can go on and the estimate be asked again
+    harness.publish(*sweep_streams(sim, n_poses=250, seed=3))
+    resp = harness.estimate_field()
+    assert resp.success, resp.message
+
+
+def test_poor_coverage_fails_with_the_gap_and_publishes_nothing(harness, sim):
+    harness.begin_sweep()
+    harness.publish(*sweep_streams(sim, n_poses=250, half_disc=True, seed=4))
+    resp = harness.estimate_field()
+    assert not resp.success
+    assert 'missed' in resp.message and 'sweep the plate over the whole area' in resp.message
+    time.sleep(0.2)
+    assert harness.fields == []  # the latched field is not replaced by a failed estimate
+
+
+def test_streams_out_of_step_are_reported(harness, sim):
+    force_t, force, pose_t, pose_xy = sweep_streams(sim, n_poses=200, seed=5)
+    harness.begin_sweep()
+    harness.publish(force_t + 30.0, force, pose_t, pose_xy)
+    resp = harness.estimate_field()
+    assert not resp.success and 'out of step' in resp.message
+
+
+def test_a_request_for_other_fans_is_refused(harness, sim):
+    harness.begin_sweep()
+    harness.publish(*sweep_streams(sim, n_poses=100, seed=6))
+    resp = harness.estimate_field(fan_names=['LM1', 'XX'], pwm=[0.5, 0.5])
+    assert not resp.success and "['XX']" in resp.message and 'config_dir' in resp.message
+    resp = harness.estimate_field(fan_names=['LM1'], pwm=[0.5, 0.5])
+    assert not resp.success and 'one per fan' in resp.message
+
+
+def test_buffers_keep_only_max_buffer_s(ros_context, sim):
+    h = Harness(ros_context, [Parameter('max_buffer_s', value=2.0)])
+    try:
+        h.begin_sweep()
+        force_t, force, pose_t, pose_xy = sweep_streams(sim, seed=7)  # 4 s of stamps
+        h.publish(force_t, force, pose_t, pose_xy, expect_buffered=False)
+        assert wait_until(lambda: h.node._force.dropped > 0 and len(h.node._pose) > 0)
+        t, _ = h.node._force.arrays()
+        assert t.max() - t.min() <= 2.0 and len(t) <= 801
+    finally:
+        h.close()

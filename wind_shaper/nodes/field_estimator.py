@@ -1,0 +1,188 @@
+"""field_estimator: force + plate pose of one sweep -> the force field at the key points.
+
+Between ``/wind_shaper/field_estimator/begin_sweep`` (std_srvs/Trigger: clear the buffers, start
+collecting) and ``/wind_shaper/field_estimator/estimate`` (wind_shaper_msgs/EstimateField) it
+buffers the vertical force (``/wind_shaper/force``, WrenchStamped, force.z [N]; axis and sign
+are fixed upstream by force_sensor) and the plate centre (``/wind_shaper/plate/pose``,
+PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose with the mean
+force over +-half a pose period around its stamp (``wind_shaper.core.align``), runs the core
+``FieldEstimator`` (GET_CLOSEST + GP, settings from shaping.yaml's ``estimator`` section) at the
+key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/field`` (latched)
+and returns it with the raw pairs (``SweepSamples``). An estimate that fails (no samples, streams
+out of step, poor coverage) answers ``success: false`` with the reason and changes nothing: the
+buffers are kept and collection goes on if it was on, so the plate can sweep on and the
+coordinator can ask again. /diagnostics at 1 Hz.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+from wind_shaper_msgs.msg import FieldEstimate
+from wind_shaper_msgs.srv import EstimateField
+
+from ..app import Setup
+from ..core.align import SampleBuffer, align_sweep
+from ..core.errors import WindShaperError
+from ..ros import names, qos
+from ..ros.convert import estimate_to_msg, seconds_to_stamp, stamp_to_seconds, sweep_to_msg
+from ..ros.params import declare_parameters, param
+from ..ros.runner import run
+
+
+@dataclass(frozen=True)
+class FieldEstimatorParams:
+    config_dir: str = param('', "folder holding tunnel.yaml and shaping.yaml ('' = the shipped "
+                            'config, or $WIND_SHAPER_CONFIG)')
+    force_topic: str = param(names.FORCE, 'geometry_msgs/WrenchStamped; force.z is the vertical '
+                             'force on the plate [N], stamped at reception')
+    pose_topic: str = param(names.PLATE_POSE, 'geometry_msgs/PoseStamped plate centre '
+                            '[m, tunnel frame], stamped at capture')
+    max_buffer_s: float = param(300.0, 'longest sweep kept in the buffers; older samples are '
+                                'dropped [s]', low=1.0, high=3600.0)
+
+
+class FieldEstimatorNode(Node):
+    """Sweep buffers in, FieldEstimate out; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__(names.FIELD_ESTIMATOR, **kwargs)
+        self.params = p = declare_parameters(self, FieldEstimatorParams)
+        setup = Setup.load(p.config_dir or None)
+        self._key_points = setup.geometry.key_points
+        self._fan_names = list(setup.geometry.fans.names)
+        self._estimator = setup.shaping.make_estimator()
+        self._lock = threading.Lock()  # collecting flag + the buffers' begin/end
+        self._collecting = False
+        self._force = SampleBuffer(1, p.max_buffer_s)
+        self._pose = SampleBuffer(2, p.max_buffer_s)
+        self._began_at: float | None = None  # time.monotonic() of begin_sweep
+        self._last = 'no estimate yet'
+        self._last_ok = True
+        self._estimates = 0
+
+        streams = MutuallyExclusiveCallbackGroup()
+        poses = MutuallyExclusiveCallbackGroup()
+        services = MutuallyExclusiveCallbackGroup()  # begin and estimate never interleave
+        self.create_subscription(WrenchStamped, p.force_topic, self._on_force, qos.STREAM,
+                                 callback_group=streams)
+        self.create_subscription(PoseStamped, p.pose_topic, self._on_plate_pose, qos.STREAM,
+                                 callback_group=poses)
+        self._field_pub = self.create_publisher(FieldEstimate, names.FIELD, qos.LATCHED)
+        self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
+        self.create_service(Trigger, names.BEGIN_SWEEP, self._handle_begin_sweep,
+                            callback_group=services)
+        self.create_service(EstimateField, names.ESTIMATE_FIELD, self._handle_estimate,
+                            callback_group=services)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f'{len(self._key_points)} key points, estimator {self._estimator}; '
+            f'force {p.force_topic}, pose {p.pose_topic}')
+
+    # -- streams --------------------------------------------------------------------------------------
+    def _on_force(self, msg: WrenchStamped) -> None:
+        if self._collecting:
+            self._force.append(stamp_to_seconds(msg.header.stamp), msg.wrench.force.z)
+
+    def _on_plate_pose(self, msg: PoseStamped) -> None:
+        if self._collecting:
+            pos = msg.pose.position
+            self._pose.append(stamp_to_seconds(msg.header.stamp), pos.x, pos.y)
+
+    # -- services -------------------------------------------------------------------------------------
+    def _handle_begin_sweep(self, request: Trigger.Request, response: Trigger.Response):
+        with self._lock:
+            self._force.clear()
+            self._pose.clear()
+            self._collecting = True
+            self._began_at = time.monotonic()
+        response.success = True
+        response.message = 'collecting force and plate pose: move the plate, then call estimate'
+        return response
+
+    def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
+        with self._lock:
+            was_collecting = self._collecting
+            self._collecting = False
+            force_t, force = self._force.arrays()
+            pose_t, pose_x, pose_y = self._pose.arrays()
+        try:
+            if not was_collecting and len(force_t) == 0 and len(pose_t) == 0:
+                raise WindShaperError('no sweep was collected: call begin_sweep, move the plate, '
+                                      'then call estimate')
+            pwm = self._request_pwm(request)
+            finite = pose_t[np.isfinite(pose_t)]
+            t_start = float(finite.min()) if len(finite) else 0.0
+            sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
+            est = self._estimator.estimate(sweep, self._key_points)
+        except WindShaperError as exc:
+            with self._lock:
+                self._collecting = was_collecting  # a failed estimate changes nothing
+            message = (f'no field estimate for iteration {request.iteration} from {len(force_t)} '
+                       f'force and {len(pose_t)} pose samples: {exc}')
+            self._last, self._last_ok = message, False
+            self.get_logger().warning(message)
+            response.success = False
+            response.message = message
+            return response
+        names_ = list(request.fan_names)
+        response.estimate = estimate_to_msg(est, request.iteration, names_, pwm, len(sweep),
+                                            stamp=seconds_to_stamp(t_start + sweep.times[-1]))
+        response.samples = sweep_to_msg(sweep, request.iteration, names_,
+                                        stamp=seconds_to_stamp(t_start))
+        self._field_pub.publish(response.estimate)
+        duration = float(sweep.times[-1] - sweep.times[0]) if len(sweep) > 1 else 0.0
+        rates = ''
+        if duration > 0:
+            rates = (f' (force {len(force_t) / duration:.0f} Hz, pose {len(pose_t) / duration:.0f} Hz '
+                     f'over {duration:.1f} s)')
+        message = (f'iteration {request.iteration}: {len(sweep)} pairs{rates}, GP on {est.n_used} '
+                   f'samples, max std {float(np.max(est.std)):.3f} N')
+        self._last, self._last_ok = message, True
+        self._estimates += 1
+        self.get_logger().info(message)
+        response.success = True
+        response.message = message
+        return response
+
+    def _request_pwm(self, request: EstimateField.Request) -> np.ndarray:
+        if len(request.fan_names) != len(request.pwm):
+            raise WindShaperError(f'the request names {len(request.fan_names)} fans but gives '
+                                  f'{len(request.pwm)} PWM values: give one per fan')
+        unknown = sorted(set(request.fan_names) - set(self._fan_names))
+        if unknown:
+            raise WindShaperError(f'the request names fans {unknown} that tunnel.yaml does not have '
+                                  f'({self._fan_names}): the coordinator and the field estimator '
+                                  f'must read the same config_dir')
+        return np.asarray(request.pwm, dtype=float)
+
+    # -- diagnostics ----------------------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        level = DiagnosticStatus.OK if self._last_ok else DiagnosticStatus.WARN
+        state = 'collecting' if self._collecting else 'idle'
+        values = {'state': state, 'force_samples': len(self._force), 'pose_samples': len(self._pose),
+                  'dropped_force_samples': self._force.dropped, 'estimates': self._estimates,
+                  'last_estimate': self._last}
+        if self._collecting and self._began_at is not None:
+            values['collecting_for_s'] = f'{time.monotonic() - self._began_at:.1f}'
+        msg = DiagnosticArray(status=[DiagnosticStatus(
+            level=level, name=f'wind_shaper/{names.FIELD_ESTIMATOR}', message=f'{state}; {self._last}',
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(msg)
+
+
+def main(args=None) -> int:
+    # Not the events executor: in the Jazzy wheels it left this node's services unanswered.
+    return run(FieldEstimatorNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
