@@ -13,6 +13,7 @@ import yaml
 from scipy.spatial import cKDTree
 
 rclpy = pytest.importorskip('rclpy')
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -64,9 +65,11 @@ class Harness:
         self.node = SimTunnel(context=context, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         self.client = rclpy.create_node('sim_tunnel_test_client', context=context)
-        self.poses = []
+        self.poses, self.diagnostics = [], []
         self.client.create_subscription(PoseStamped, names.MOCAP_POSE, self.poses.append,
                                         qos.STREAM)
+        self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
+                                        self.diagnostics.append, 10)
         self.executor = MultiThreadedExecutor(num_threads=3, context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
@@ -140,6 +143,11 @@ def test_mavlink_commands_drive_the_plant(harness):
         # the autopilot reports back what it applied, as the real one does
         assert wait_for(lambda: len(link.applied) == 7, 2.0)
         assert [link.applied[n] for n in FANS] == pytest.approx(wanted, abs=1e-3)
+        # diagnostics (1 Hz) tell the applied PWMs and who is connected
+        assert wait_for(lambda: any(
+            'HM2=0.500' in kv.value for d in h.diagnostics[-1:] for kv in d.status[0].values), 3.0)
+        values = {kv.key: kv.value for kv in h.diagnostics[-1].status[0].values}
+        assert values['mavlink_peer'] != 'None' and values['force_field_current'] == 'true'
     finally:
         link.close()
 

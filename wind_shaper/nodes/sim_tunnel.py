@@ -26,7 +26,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -36,7 +36,7 @@ from ..app import Setup
 from ..core.errors import ConfigError, WindShaperError
 from ..core.protocols.errors import ProtocolConfigError
 from ..core.protocols.mavlink_fans import FanChannel, FanChannelMap
-from ..ros import names, qos
+from ..ros import diagnostics, names, qos
 from ..ros.convert import seconds_to_stamp
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
@@ -119,6 +119,16 @@ class SimTunnel(Node):
 
     def __init__(self, **kwargs):
         super().__init__(names.SIM_TUNNEL, **kwargs)
+        self.live = self._autopilot = self._netft = self._mocap_thread = None
+        self._stop = threading.Event()
+        try:
+            self._start()
+        except BaseException:
+            self._close_links()
+            super().destroy_node()
+            raise
+
+    def _start(self) -> None:
         self.params = p = declare_parameters(self, SimTunnelParams)
         setup = Setup.load(p.config_dir or None)
         sim = setup.make_sim(seed=None if p.seed < 0 else p.seed)
@@ -142,10 +152,8 @@ class SimTunnel(Node):
         self.live.start_worker()
         self._mocap_tf = MocapFrame(p.tunnel_from_mocap, p.plate_offset)
         self._index = {n: i for i, n in enumerate(self.fan_names)}
-        self._stop = threading.Event()
         self.mocap_published = 0
         self.sweeps_done = 0
-        self._autopilot = self._netft = None
         try:
             self._autopilot = SimAutopilot(HOST, p.mavlink_port, flavour=p.flavour, n_channels=16,
                                            on_outputs=self._on_outputs, safe_us=p.pwm_min_us,
@@ -153,12 +161,10 @@ class SimTunnel(Node):
             self._netft = SimNetFtServer(self._force_source, HOST, p.netft_port, p.netft_rate_hz,
                                          p.counts_per_force, p.counts_per_torque)
         except OSError as exc:
-            self._close_links()
             raise ConfigError(f'cannot open the simulated rig on {HOST} (MAVLink port '
                               f'{p.mavlink_port}, Net F/T port {p.netft_port}): {exc}; another '
                               f'sim_tunnel may be running: stop it or change the ports') from None
         except ProtocolConfigError as exc:
-            self._close_links()
             raise ConfigError(str(exc)) from None
 
         self._pose_pub = self.create_publisher(PoseStamped, p.mocap_topic, qos.STREAM)
@@ -277,39 +283,33 @@ class SimTunnel(Node):
         live = self.live
         x, y = live.position()
         ap, ft = self._autopilot, self._netft
+        current = live.field_current
         values = {
             'pwm': ' '.join(f'{n}={u:.3f}' for n, u in zip(self.fan_names, live.pwm)),
-            'force_field_current': str(live.field_current),
+            'force_field_current': current,
             'plate_position_m': f'{x:.3f} {y:.3f}',
-            'sweeping': str(live.sweeping()),
-            'sweeps_done': str(self.sweeps_done),
-            'mavlink_peer': str(ap.peer),
-            'netft_client': str(ft.client),
-            'netft_streaming': str(ft.streaming),
-            'netft_records': str(ft.fault_log().generated),
-            'mocap_published': str(self.mocap_published),
+            'sweeping': live.sweeping(),
+            'sweeps_done': self.sweeps_done,
+            'mavlink_peer': ap.peer,
+            'netft_client': ft.client,
+            'netft_streaming': ft.streaming,
+            'netft_records': ft.fault_log().generated,
+            'mocap_published': self.mocap_published,
         }
-        status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f'{names.SIM_TUNNEL}: simulated rig',
-                                  hardware_id='sim', message='running',
-                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
-        if not live.field_current:
-            status.message = 'force field being recomputed for new fan commands'
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(msg)
+        message = 'running' if current else 'force field being recomputed for new fan commands'
+        self._diag_pub.publish(diagnostics.array(self, diagnostics.status(
+            f'{names.SIM_TUNNEL}: simulated rig', diagnostics.OK, message, values, 'sim')))
 
     # ------------------------------------------------------------------ shutdown
     def _close_links(self) -> None:
-        for link in (self._autopilot, self._netft):
+        self._stop.set()
+        if self._mocap_thread is not None:
+            self._mocap_thread.join(2.0)
+        for link in (self._autopilot, self._netft, self.live):
             if link is not None:
                 link.close()
-        self.live.close()
 
     def destroy_node(self):
-        self._stop.set()
-        thread = getattr(self, '_mocap_thread', None)
-        if thread is not None:
-            thread.join(2.0)
         self._close_links()
         return super().destroy_node()
 
