@@ -1,0 +1,157 @@
+"""mocap_relay: tracked rigid body pose (mocap frame) -> plate centre pose (tunnel frame).
+
+Subscribes ``input_topic`` (geometry_msgs/PoseStamped from the mocap driver, e.g. vrpn_mocap,
+best-effort so it matches the driver's sensor-data QoS) and publishes on ``output_topic`` the
+plate centre ``T_tunnel_mocap * T_mocap_body * plate_offset`` with the plate's orientation, in
+frame ``tunnel``, with the input's stamp unchanged (the capture time the field estimator aligns
+force with). The per-pose logic is ``wind_shaper.core.frames.PlateRelay``: poses with NaN or a
+non-unit quaternion, poses not newer than the last accepted one, and jumps (faster than
+``max_speed_m_s`` since the last accepted pose) are dropped and counted; poses outside
+``max_radius_m`` from the tunnel axis are published and flagged. Dropouts (no accepted pose for
+``dropout_timeout_s``) and everything above are reported in /diagnostics at 1 Hz.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ..core.frames import PlateRelay, RelayStats, RigidTransform, Verdict
+from ..ros import diagnostics as diag
+from ..ros import names, qos
+from ..ros.convert import stamp_to_seconds
+from ..ros.params import declare_parameters, param
+from ..ros.runner import run
+
+#: Best effort matches both best-effort (vrpn_mocap's default sensor-data QoS) and reliable
+#: publishers.
+MOCAP_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
+                       history=HistoryPolicy.KEEP_LAST)
+
+
+@dataclass(frozen=True)
+class MocapRelayParams:
+    input_topic: str = param(names.MOCAP_POSE, 'PoseStamped of the tracked rigid body, mocap '
+                             'frame (the mocap driver output)')
+    output_topic: str = param(names.PLATE_POSE, 'PoseStamped of the plate centre, tunnel frame')
+    tunnel_from_mocap: tuple = param((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), 'calibrated transform '
+                                     'T_tunnel_mocap: tx ty tz [m] qx qy qz qw (the mocap frame '
+                                     'in the tunnel frame)', array_of=float)
+    plate_offset: tuple = param((0.0, 0.0, 0.0), 'plate centre in the tracked rigid body frame '
+                                '[m]', array_of=float)
+    max_speed_m_s: float = param(6.0, 'a faster move since the last accepted pose is a jump and '
+                                 'is dropped [m/s]', low=1e-3)
+    dropout_timeout_s: float = param(0.2, 'no accepted pose for this long is a dropout [s]',
+                                     low=1e-3)
+    max_radius_m: float = param(0.40, 'plate centre farther than this from the tunnel axis is '
+                                'flagged as outside the tunnel [m]', low=1e-3)
+
+    def __post_init__(self):
+        self.relay()
+
+    def relay(self) -> PlateRelay:
+        return PlateRelay(RigidTransform.from_xyz_quat(self.tunnel_from_mocap), self.plate_offset,
+                          self.max_speed_m_s, self.max_radius_m)
+
+
+class MocapRelayNode(Node):
+    """PoseStamped [m, mocap frame] in, PoseStamped [m, tunnel frame] out; see the module doc."""
+
+    def __init__(self, **kwargs):
+        super().__init__(names.MOCAP_RELAY, **kwargs)
+        self.params = p = declare_parameters(self, MocapRelayParams)
+        self._relay = p.relay()
+        self._received = 0
+        self._input_frame = ''
+        self._last_accepted: float | None = None   # time.monotonic() of the last accepted pose
+        self._dropouts = 0
+        self._longest_dropout = 0.0
+        self._last_outside = False
+        self._last_position = None
+        self._reported = (time.monotonic(), RelayStats(), 0)
+        self._pub = self.create_publisher(PoseStamped, p.output_topic, qos.STREAM)
+        self._pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
+        self.create_subscription(PoseStamped, p.input_topic, self._on_mocap_pose, MOCAP_QOS)
+        self.create_timer(1.0, self._on_diagnostics_timer)
+        self.get_logger().info(f'{p.input_topic} -> {p.output_topic}; T_tunnel_mocap = '
+                               f'{self._relay.tunnel_from_mocap!r}')
+
+    def _on_mocap_pose(self, msg: PoseStamped) -> None:
+        now = time.monotonic()
+        self._received += 1
+        self._input_frame = msg.header.frame_id
+        pos, q = msg.pose.position, msg.pose.orientation
+        result = self._relay.process(stamp_to_seconds(msg.header.stamp), (pos.x, pos.y, pos.z),
+                                     (q.x, q.y, q.z, q.w))
+        if result.verdict is not Verdict.ACCEPTED:
+            self.get_logger().warning(
+                f'pose dropped ({result.verdict.value}'
+                + (f', {result.speed:.1f} m/s' if result.speed is not None else '') + ')',
+                throttle_duration_sec=2.0)
+            return
+        if self._last_accepted is not None:
+            gap = now - self._last_accepted
+            if gap > self.params.dropout_timeout_s:
+                self._dropouts += 1
+                self._longest_dropout = max(self._longest_dropout, gap)
+        self._last_accepted = now
+        self._last_outside = result.outside
+        self._last_position = result.position
+        out = PoseStamped()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = names.TUNNEL_FRAME
+        x, y, z = (float(v) for v in result.position)
+        out.pose.position.x, out.pose.position.y, out.pose.position.z = x, y, z
+        qx, qy, qz, qw = (float(v) for v in result.orientation)
+        o = out.pose.orientation
+        o.x, o.y, o.z, o.w = qx, qy, qz, qw
+        self._pub.publish(out)
+
+    def _on_diagnostics_timer(self) -> None:
+        now = time.monotonic()
+        stats = self._relay.stats
+        t_prev, prev, received_prev = self._reported
+        self._reported = (now, stats, self._received)
+        rate = (stats.accepted - prev.accepted) / max(now - t_prev, 1e-9)
+        age = None if self._last_accepted is None else now - self._last_accepted
+        in_dropout = age is None or age > self.params.dropout_timeout_s
+        if in_dropout and age is not None and age > self._longest_dropout:
+            self._longest_dropout = age
+        values = dict(received=self._received, published=stats.accepted, rate_hz=rate,
+                      invalid=stats.invalid, stale=stats.stale, jumps=stats.jumps,
+                      outside=stats.outside, dropouts=self._dropouts + int(in_dropout and
+                                                                           age is not None),
+                      longest_dropout_s=self._longest_dropout,
+                      last_pose_age_s='never' if age is None else age,
+                      input_frame=self._input_frame)
+        if self._last_position is not None:
+            x, y, z = self._last_position
+            values.update(x_m=float(x), y_m=float(y), z_m=float(z),
+                          radius_m=float((x * x + y * y) ** 0.5))
+        fresh = {k: getattr(stats, k) - getattr(prev, k) for k in ('invalid', 'stale', 'jumps')}
+        if in_dropout:
+            level, message = diag.ERROR, ('no pose received yet' if age is None else
+                                          f'dropout: no good pose for {age:.2f} s')
+        elif self._last_outside:
+            level, message = diag.WARN, (f'plate outside the tunnel (radius > '
+                                         f'{self.params.max_radius_m} m)')
+        elif any(fresh.values()):
+            level, message = diag.WARN, ', '.join(
+                f'{v} {k}' for k, v in fresh.items() if v) + ' dropped in the last second'
+        else:
+            level, message = diag.OK, f'relaying at {rate:.0f} Hz'
+        self._pub_diag.publish(diag.array(self, diag.status(
+            f'{names.MOCAP_RELAY}: plate pose', level, message, values,
+            hardware_id=self.params.input_topic)))
+
+
+def main(args=None):
+    return run(MocapRelayNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
