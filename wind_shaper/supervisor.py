@@ -1,0 +1,451 @@
+"""Run the node graph as separate OS processes and look after them (no argparse, no rclpy).
+
+``plan_graph`` turns a config folder into one ``NodeSpec`` per node: ``python -m
+wind_shaper.nodes.<node> --ros-args --params-file <config>/<node>.yaml -p key:=value ...``,
+sim_tunnel first when simulating. ``Supervisor`` starts them, each in its own session (a Ctrl-C
+in the terminal reaches only the supervisor, which then stops the children in order) and, on
+Linux, with a parent-death signal (if the supervisor itself is killed, its children get SIGTERM
+instead of running on). Every line a child prints is echoed with the node's name in front and
+kept in a tail for error reports.
+
+``Supervisor.wait_visible(visible)`` waits (bounded) until every node appears in the ROS graph:
+``visible()`` is injected (``wind_shaper.cli.graph`` asks rclpy), so this module stays free of
+ROS. ``start(names)`` and ``wait_visible(..., names=)`` bring the graph up in stages (the
+simulated rig first, so the drivers find its sockets open).
+
+``poll()`` notices a child that died, reports its exit code and log tail and restarts it after a
+backoff (``RestartPolicy``); a node that exits with code 2 (a configuration error: the node
+runner's convention) or that used up its restarts is given up, which ends the graph.
+``shutdown()`` sends SIGINT to every child, waits ``grace_s``, then SIGKILLs what is left.
+"""
+from __future__ import annotations
+
+import collections
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, Sequence, TextIO
+
+import yaml
+
+from .core.errors import WindShaperError
+
+__all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'StopSignals',
+           'plan_graph', 'node_command', 'graph_env', 'format_value', 'CONFIG_ERROR_EXIT']
+
+#: Exit code of a node whose configuration is wrong (``wind_shaper.ros.runner``): never restarted.
+CONFIG_ERROR_EXIT = 2
+_PR_SET_PDEATHSIG = 1
+
+
+class GraphError(WindShaperError):
+    """The graph could not be brought up (a node did not start or did not appear)."""
+
+
+class NodeGaveUp(WindShaperError):
+    """A node died and will not be restarted (restarts used up, disabled, or a config error)."""
+
+
+# ------------------------------------------------------------------------------------ planning
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node process: name (= ROS node name), the full command line, and where its
+    parameters come from (for messages)."""
+
+    name: str
+    argv: tuple[str, ...]
+    params_file: Path | None = None
+    note: str = ''
+
+
+def format_value(value) -> str:
+    """A parameter value as ROS's ``-p name:=value`` expects it (YAML flow syntax)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(format_value(v) if not isinstance(v, str) else repr(v)
+                               for v in value) + ']'
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()
+
+
+def node_command(node: str, params_file: Path | None = None,
+                 overrides: Mapping[str, object] | None = None,
+                 python: str = sys.executable) -> list[str]:
+    """``python -m wind_shaper.nodes.<node> --ros-args [--params-file F] [-p k:=v ...]``."""
+    argv = [python, '-m', f'wind_shaper.nodes.{node}', '--ros-args']
+    if params_file is not None:
+        argv += ['--params-file', str(params_file)]
+    for key, value in (overrides or {}).items():
+        argv += ['-p', f'{key}:={format_value(value)}']
+    return argv
+
+
+def _declared(params_file: Path, node: str) -> set[str]:
+    try:
+        doc = yaml.safe_load(params_file.read_text()) or {}
+        return set((doc.get(node) or {}).get('ros__parameters') or {})
+    except (OSError, yaml.YAMLError, AttributeError) as exc:
+        raise GraphError(f'{params_file} is not a readable node parameter file ({exc}); it must '
+                         f'hold "{node}: {{ros__parameters: {{...}}}}"') from None
+
+
+def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | None = None,
+               overrides: Mapping[str, Mapping[str, object]] | None = None,
+               python: str = sys.executable) -> list[NodeSpec]:
+    """One ``NodeSpec`` per node, in order. Parameters come from ``config_dir/<node>.yaml``, or
+    from ``fallback_dir/<node>.yaml`` (the shipped one) when the folder has none. Nodes whose
+    file declares ``config_dir`` get it pointed at ``config_dir``; ``overrides`` {node: {name:
+    value}} are added last (they win). An override of an undeclared parameter is refused."""
+    config_dir = Path(config_dir).resolve()
+    overrides = {k: dict(v) for k, v in (overrides or {}).items()}
+    unknown = set(overrides) - set(nodes)
+    if unknown:
+        raise GraphError(f'parameter overrides for nodes not in the graph: {sorted(unknown)}; '
+                         f'nodes are {", ".join(nodes)}')
+    specs = []
+    for node in nodes:
+        path, note = config_dir / f'{node}.yaml', ''
+        if not path.is_file() and fallback_dir is not None:
+            shipped = Path(fallback_dir) / f'{node}.yaml'
+            if shipped.is_file():
+                path, note = shipped, f'{config_dir} has no {node}.yaml: using the shipped {shipped}'
+        if not path.is_file():
+            raise GraphError(f'no parameter file for node {node}: put a {node}.yaml in '
+                             f'{config_dir}')
+        declared = _declared(path, node)
+        params: dict[str, object] = {}
+        if 'config_dir' in declared:
+            params['config_dir'] = str(config_dir)
+        for key, value in overrides.get(node, {}).items():
+            if key not in declared:
+                raise GraphError(f'{node} has no parameter {key!r} (see {path}); its parameters '
+                                 f'are {", ".join(sorted(declared))}')
+            params[key] = value
+        specs.append(NodeSpec(node, tuple(node_command(node, path, params, python)), path, note))
+    return specs
+
+
+def graph_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The children's environment: ``base`` (default os.environ) with unbuffered Python output
+    and ROS discovery kept on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) unless the
+    user chose a discovery setting (ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_LOCALHOST_ONLY or
+    ROS_STATIC_PEERS)."""
+    env = dict(os.environ if base is None else base)
+    env['PYTHONUNBUFFERED'] = '1'
+    if not any(env.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY',
+                                    'ROS_STATIC_PEERS')):
+        env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    return env
+
+
+# ------------------------------------------------------------------------------------- policy
+@dataclass(frozen=True)
+class RestartPolicy:
+    """Restart a node that died: ``enabled``; at most ``max_restarts`` times per node; after
+    ``backoff_s`` [s], doubling each time up to ``max_backoff_s``; a node that ran for
+    ``reset_after_s`` [s] since its last start has its count reset (a crash a day is not a
+    crash loop)."""
+
+    enabled: bool = True
+    max_restarts: int = 3
+    backoff_s: float = 1.0
+    max_backoff_s: float = 10.0
+    reset_after_s: float = 300.0
+
+    def __post_init__(self):
+        if self.max_restarts < 0 or self.backoff_s < 0 or self.max_backoff_s < 0:
+            raise ValueError(f'restart policy values must be >= 0; got {self}')
+
+    def delay(self, restarts_so_far: int) -> float:
+        """Wait [s] before restart number ``restarts_so_far + 1``."""
+        return min(self.backoff_s * 2 ** restarts_so_far, self.max_backoff_s)
+
+
+# ------------------------------------------------------------------------------------ children
+def _parent_death_signal():
+    """preexec_fn: on Linux, SIGTERM this child when the thread that forked it exits (the
+    supervisor spawns from its main thread only). None elsewhere."""
+    if not sys.platform.startswith('linux'):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+    def arm():
+        prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    return arm
+
+
+@dataclass
+class _Child:
+    spec: NodeSpec
+    tail: collections.deque
+    process: subprocess.Popen | None = None
+    reader: threading.Thread | None = None
+    started_at: float = 0.0
+    restarts: int = 0
+    restart_at: float | None = None
+    exit_code: int | None = None
+    gave_up: bool = False
+    pids: list = field(default_factory=list)
+
+
+class Supervisor:
+    """Starts, watches, restarts and stops the node processes of ``specs`` (see module doc).
+
+    env: the children's environment (``graph_env()``); out: where prefixed child lines and
+    reports go; policy: ``RestartPolicy``; tail_lines: lines kept per node for reports;
+    log_dir: if given, each node's output is also written to ``log_dir/<node>.log``;
+    grace_s [s]: how long ``shutdown`` waits after SIGINT before SIGKILL.
+    """
+
+    def __init__(self, specs: Sequence[NodeSpec], *, env: Mapping[str, str] | None = None,
+                 out: TextIO | None = None, policy: RestartPolicy = RestartPolicy(),
+                 tail_lines: int = 20, log_dir: Path | None = None, grace_s: float = 5.0,
+                 clock: Callable[[], float] = time.monotonic):
+        names = [s.name for s in specs]
+        if len(set(names)) != len(names):
+            raise GraphError(f'node names must be unique; got {names}')
+        self.specs = list(specs)
+        self.env = dict(graph_env() if env is None else env)
+        self.out = out or sys.stdout
+        self.policy = policy
+        self.log_dir = Path(log_dir) if log_dir else None
+        self.grace_s = float(grace_s)
+        self.clock = clock
+        self._children = {s.name: _Child(s, collections.deque(maxlen=tail_lines)) for s in specs}
+        self._width = max((len(n) for n in names), default=0)
+        self._out_lock = threading.Lock()
+        self._preexec = _parent_death_signal()
+        self._stopping = False
+
+    # ------------------------------------------------------------------ output
+    def say(self, text: str) -> None:
+        """A line of the supervisor's own, between the children's lines."""
+        with self._out_lock:
+            self.out.write(text.rstrip('\n') + '\n')
+            self.out.flush()
+
+    def _pump(self, child: _Child, stream, log) -> None:
+        prefix = f'[{child.spec.name:<{self._width}}] '
+        try:
+            for raw in iter(stream.readline, b''):
+                line = raw.decode('utf-8', 'replace').rstrip('\r\n')
+                child.tail.append(line)
+                if log is not None:
+                    log.write(line + '\n')
+                    log.flush()
+                with self._out_lock:
+                    self.out.write(prefix + line + '\n')
+                    self.out.flush()
+        except (OSError, ValueError):
+            pass
+        finally:
+            stream.close()
+            if log is not None:
+                log.close()
+
+    # ------------------------------------------------------------------ processes
+    def _spawn(self, child: _Child) -> None:
+        spec = child.spec
+        log = None
+        if self.log_dir is not None:
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            log = open(self.log_dir / f'{spec.name}.log', 'a', encoding='utf-8')
+        if threading.current_thread() is not threading.main_thread():
+            preexec = None   # the parent-death signal follows the forking thread: main only
+        else:
+            preexec = self._preexec
+        try:
+            process = subprocess.Popen(spec.argv, env=self.env, stdin=subprocess.DEVNULL,
+                                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                       start_new_session=True, preexec_fn=preexec)
+        except OSError as exc:
+            if log is not None:
+                log.close()
+            raise GraphError(f'cannot start node {spec.name} ({" ".join(spec.argv[:3])}...): '
+                             f'{exc}') from None
+        child.process, child.exit_code, child.restart_at = process, None, None
+        child.started_at = self.clock()
+        child.pids.append(process.pid)
+        child.reader = threading.Thread(target=self._pump, args=(child, process.stdout, log),
+                                        name=f'supervisor-{spec.name}', daemon=True)
+        child.reader.start()
+
+    def start(self, names: Iterable[str] | None = None) -> None:
+        """Start the nodes ``names`` (default: every node not started yet), in plan order."""
+        wanted = None if names is None else set(names)
+        unknown = (wanted or set()) - set(self._children)
+        if unknown:
+            raise GraphError(f'no node {sorted(unknown)} in this graph')
+        for name, child in self._children.items():
+            if child.process is not None or (wanted is not None and name not in wanted):
+                continue
+            if child.spec.note:
+                self.say(f'wind-shaper up: {child.spec.note}')
+            self._spawn(child)
+
+    def pids(self) -> dict[str, int]:
+        """PIDs of the children running now."""
+        return {n: c.process.pid for n, c in self._children.items()
+                if c.process is not None and c.process.poll() is None}
+
+    def all_pids(self) -> list[int]:
+        """Every PID this supervisor ever started (restarts included)."""
+        return [pid for c in self._children.values() for pid in c.pids]
+
+    def tail(self, name: str, lines: int | None = None) -> list[str]:
+        """The last lines [of at most ``lines``] node ``name`` printed."""
+        child = self._children[name]
+        if child.reader is not None and child.process is not None and child.process.poll() is not None:
+            child.reader.join(1.0)   # let the last lines of a dead child arrive
+        out = list(child.tail)
+        return out[-lines:] if lines else out
+
+    def _tail_text(self, name: str) -> str:
+        lines = self.tail(name)
+        return '\n'.join(f'    {ln}' for ln in lines) if lines else '    (it printed nothing)'
+
+    # ------------------------------------------------------------------ start-up
+    def wait_visible(self, visible: Callable[[], Iterable[str]], timeout_s: float = 60.0,
+                     interval_s: float = 0.1, names: Iterable[str] | None = None) -> float:
+        """Wait until the name of every started node (or of each of ``names``) is in
+        ``visible()``; returns the time it took [s]. GraphError naming the node (with its log
+        tail) if one exits first or is not visible within ``timeout_s``."""
+        t0 = self.clock()
+        wanted = [n for n, c in self._children.items() if c.process is not None
+                  and (names is None or n in set(names))]
+        while True:
+            for name in wanted:
+                code = self._children[name].process.poll()
+                if code is not None:
+                    raise GraphError(f'node {name} exited with code {code} while the graph was '
+                                     f'starting; its last lines:\n{self._tail_text(name)}')
+            seen = set(visible())
+            missing = [n for n in wanted if n not in seen]
+            if not missing:
+                return self.clock() - t0
+            if self.clock() - t0 > timeout_s:
+                name = missing[0]
+                others = f' (also missing: {", ".join(missing[1:])})' if missing[1:] else ''
+                raise GraphError(f'node {name} did not appear in the ROS graph within '
+                                 f'{timeout_s:g} s{others}; visible: '
+                                 f'{", ".join(sorted(seen & set(wanted))) or "none"}. Check '
+                                 f'ROS_DOMAIN_ID / discovery settings; its last lines:\n'
+                                 f'{self._tail_text(name)}')
+            time.sleep(interval_s)
+
+    # ------------------------------------------------------------------ supervision
+    def poll(self) -> None:
+        """Report children that died and restart them when due (call from the main thread every
+        ~0.1 s). Raises NodeGaveUp when a node will not be restarted."""
+        now = self.clock()
+        for name, child in self._children.items():
+            if child.gave_up or child.process is None:
+                continue
+            if child.restart_at is not None:
+                if now >= child.restart_at:
+                    child.restarts += 1
+                    self.say(f'wind-shaper up: restarting {name} '
+                             f'({child.restarts} of {self.policy.max_restarts})')
+                    self._spawn(child)
+                continue
+            code = child.process.poll()
+            if code is None or child.exit_code is not None:
+                continue
+            child.exit_code = code
+            if now - child.started_at >= self.policy.reset_after_s:
+                child.restarts = 0
+            report = (f'wind-shaper up: node {name} (pid {child.process.pid}) exited with code '
+                      f'{code}; its last lines:\n{self._tail_text(name)}')
+            if code == CONFIG_ERROR_EXIT:
+                reason = 'it reported a configuration error: fix it and start again'
+            elif not self.policy.enabled:
+                reason = 'restarts are off'
+            elif child.restarts >= self.policy.max_restarts:
+                reason = f'it was restarted {child.restarts} times already'
+            else:
+                delay = self.policy.delay(child.restarts)
+                child.restart_at = now + delay
+                self.say(f'{report}\nwind-shaper up: restarting {name} in {delay:g} s')
+                continue
+            child.gave_up = True
+            self.say(report)
+            raise NodeGaveUp(f'node {name} exited with code {code} and is not restarted: {reason}')
+
+    def supervise(self, should_stop: Callable[[], bool], interval_s: float = 0.1,
+                  during: Callable[[], None] | None = None) -> None:
+        """Poll until ``should_stop()``; ``during()`` is called each round (e.g. to check on a
+        job). NodeGaveUp propagates."""
+        while not should_stop():
+            self.poll()
+            if during is not None:
+                during()
+            time.sleep(interval_s)
+
+    # ------------------------------------------------------------------ shutdown
+    def shutdown(self, grace_s: float | None = None) -> dict[str, int | None]:
+        """SIGINT to every child still running, wait up to ``grace_s`` [s], SIGKILL the rest;
+        returns {node: exit code}. Safe to call more than once."""
+        grace = self.grace_s if grace_s is None else float(grace_s)
+        self._stopping = True
+        running = [c for c in self._children.values()
+                   if c.process is not None and c.process.poll() is None]
+        for child in running:
+            try:
+                child.process.send_signal(signal.SIGINT)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        for child in running:
+            try:
+                child.process.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        for child in running:
+            if child.process.poll() is None:
+                self.say(f'wind-shaper up: {child.spec.name} did not stop within {grace:g} s of '
+                         f'SIGINT: killing it')
+                child.process.kill()
+                child.process.wait(5.0)
+        for child in self._children.values():
+            if child.reader is not None:
+                child.reader.join(2.0)
+        return {n: (c.process.returncode if c.process is not None else None)
+                for n, c in self._children.items()}
+
+
+# ------------------------------------------------------------------------------------- signals
+class StopSignals:
+    """Context manager: while active, SIGINT and SIGTERM set ``event`` instead of raising
+    (a second one raises KeyboardInterrupt, for a user who insists). Main thread only."""
+
+    def __init__(self):
+        self.event = threading.Event()
+        self.signal: int | None = None
+        self._old = {}
+
+    def _handle(self, signum, frame):
+        if self.event.is_set():
+            raise KeyboardInterrupt
+        self.signal = signum
+        self.event.set()
+
+    def __enter__(self) -> 'StopSignals':
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    def __call__(self) -> bool:
+        return self.event.is_set()
