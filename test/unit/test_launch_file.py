@@ -1,0 +1,69 @@
+"""launch/wind_shaper.launch.py cannot run here (no `launch` on PyPI): read it as source and check
+it names the same graph as `wind-shaper up`, with an entry point and a params file per node."""
+import ast
+from pathlib import Path
+
+import yaml
+
+from wind_shaper.ros import names
+
+ROOT = Path(__file__).resolve().parents[2]
+LAUNCH = ROOT / 'launch' / 'wind_shaper.launch.py'
+
+
+def constants(tree):
+    """Module-level NAME = <literal> assignments."""
+    out = {}
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 \
+                and isinstance(stmt.targets[0], ast.Name):
+            try:
+                out[stmt.targets[0].id] = ast.literal_eval(stmt.value)
+            except ValueError:
+                pass
+    return out
+
+
+def console_scripts():
+    tree = ast.parse((ROOT / 'setup.py').read_text())
+    for call in ast.walk(tree):
+        if isinstance(call, ast.keyword) and call.arg == 'entry_points':
+            return dict(line.replace(' ', '').split('=', 1)
+                        for line in ast.literal_eval(call.value)['console_scripts'])
+    raise AssertionError('setup.py has no entry_points')
+
+
+def test_the_launch_file_starts_the_whole_graph():
+    tree = ast.parse(LAUNCH.read_text())
+    c = constants(tree)
+    launched = [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]
+    assert sorted(launched) == sorted([names.SIM_TUNNEL, *names.GRAPH_NODES])
+    assert len(set(launched)) == len(launched)
+    assert c['SIM_NODE'] == names.SIM_TUNNEL
+    functions = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
+    assert {'sim', 'config_dir', 'rig_delay', 'wind_shaper', 'false'} <= strings
+    imported = {(n.module or '').split('.')[0] for n in ast.walk(tree)
+                if isinstance(n, ast.ImportFrom)}
+    assert imported <= {'launch', 'launch_ros', 'ament_index_python'}
+
+
+def test_every_launched_node_has_an_entry_point_and_a_params_file():
+    c = constants(ast.parse(LAUNCH.read_text()))
+    scripts = console_scripts()
+    for node in [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]:
+        assert scripts.get(node) == f'wind_shaper.nodes.{node}:main', f'{node}: no entry point'
+        params = ROOT / 'config' / f'{node}.yaml'
+        assert params.is_file(), f'config/{node}.yaml is missing'
+        doc = yaml.safe_load(params.read_text())
+        assert list(doc) == [node] and 'ros__parameters' in doc[node]
+        declares = 'config_dir' in doc[node]['ros__parameters']
+        assert declares == (node in c['USES_CONFIG_DIR']), \
+            f'{node}: USES_CONFIG_DIR disagrees with config/{node}.yaml'
+
+
+def test_setup_installs_the_launch_file_and_the_configs():
+    text = (ROOT / 'setup.py').read_text()
+    assert "glob('launch/*.launch.py')" in text and "glob('config/*')" in text
+    assert LAUNCH.name.endswith('.launch.py')
