@@ -117,15 +117,29 @@ def test_yaml_lists_every_parameter_with_a_comment():
         assert '#' in line, f'{name} has no comment in {CONFIG.name}'
 
 
-def test_channel_map_matches_fan_output():
-    fan_output = CONFIG.parent / 'fan_output.yaml'
-    if not fan_output.is_file():
-        pytest.skip('config/fan_output.yaml is not there yet')
+@pytest.mark.parametrize('node, keys', [
+    ('fan_output', {'fan_names': 'fan_names', 'channels': 'channels', 'pwm_min_us': 'pwm_min_us',
+                    'pwm_max_us': 'pwm_max_us', 'flavour': 'flavour'}),
+    ('force_sensor', {'counts_per_force': 'counts_per_force',
+                      'counts_per_torque': 'counts_per_torque', 'netft_port': 'sensor_port'}),
+    ('mocap_relay', {'tunnel_from_mocap': 'tunnel_from_mocap', 'plate_offset': 'plate_offset',
+                     'mocap_topic': 'input_topic'}),
+])
+def test_the_shipped_rig_settings_match_the_drivers(node, keys):
+    """The drivers run unchanged against the simulated rig only if both sides agree."""
+    other = CONFIG.parent / f'{node}.yaml'
+    if not other.is_file():
+        pytest.skip(f'config/{node}.yaml is not there yet')
     mine = yaml.safe_load(CONFIG.read_text())['sim_tunnel']['ros__parameters']
-    theirs = yaml.safe_load(fan_output.read_text())['fan_output']['ros__parameters']
-    for key in ('fan_names', 'channels', 'pwm_min_us', 'pwm_max_us', 'flavour'):
-        assert mine[key] == theirs[key], f'{key} differs between sim_tunnel.yaml and fan_output.yaml'
-    assert theirs['mavlink_url'].endswith(f':{mine["mavlink_port"]}')
+    theirs = yaml.safe_load(other.read_text())[node]['ros__parameters']
+    for key, their_key in keys.items():
+        assert mine[key] == theirs[their_key], f'{key} differs from {node}.yaml {their_key}'
+    if node == 'fan_output':
+        assert theirs['mavlink_url'] == f'udpout:127.0.0.1:{mine["mavlink_port"]}'
+    if node == 'force_sensor':
+        assert theirs['sensor_host'] == '127.0.0.1' and theirs['force_sign'] == 1
+    if node == 'mocap_relay':   # the relay must not drop the sim's fastest motion as jumps
+        assert mine['max_sweep_speed'] < theirs['max_speed_m_s']
 
 
 def test_mavlink_commands_drive_the_plant(harness):
