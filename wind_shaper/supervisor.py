@@ -86,10 +86,21 @@ def node_command(node: str, params_file: Path | None = None,
     return argv
 
 
-def _declared(params_file: Path, node: str) -> set[str]:
+def _coerce(value, like):
+    """``value`` as the type of the params file's ``like`` where ROS would refuse it otherwise:
+    an integer given for a float parameter (``sweep_duration_s=3``) becomes 3.0."""
+    if isinstance(like, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(like, list) and isinstance(value, list) and like and all(
+            isinstance(v, float) for v in like):
+        return [_coerce(v, 0.0) for v in value]
+    return value
+
+
+def _declared(params_file: Path, node: str) -> dict[str, object]:
     try:
         doc = yaml.safe_load(params_file.read_text()) or {}
-        return set((doc.get(node) or {}).get('ros__parameters') or {})
+        return dict((doc.get(node) or {}).get('ros__parameters') or {})
     except (OSError, yaml.YAMLError, AttributeError) as exc:
         raise GraphError(f'{params_file} is not a readable node parameter file ({exc}); it must '
                          f'hold "{node}: {{ros__parameters: {{...}}}}"') from None
@@ -101,7 +112,8 @@ def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | N
     """One ``NodeSpec`` per node, in order. Parameters come from ``config_dir/<node>.yaml``, or
     from ``fallback_dir/<node>.yaml`` (the shipped one) when the folder has none. Nodes whose
     file declares ``config_dir`` get it pointed at ``config_dir``; ``overrides`` {node: {name:
-    value}} are added last (they win). An override of an undeclared parameter is refused."""
+    value}} are added last (they win), typed like the file's value (an integer for a float
+    parameter becomes a float). An override of an undeclared parameter is refused."""
     config_dir = Path(config_dir).resolve()
     overrides = {k: dict(v) for k, v in (overrides or {}).items()}
     unknown = set(overrides) - set(nodes)
@@ -126,7 +138,7 @@ def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | N
             if key not in declared:
                 raise GraphError(f'{node} has no parameter {key!r} (see {path}); its parameters '
                                  f'are {", ".join(sorted(declared))}')
-            params[key] = value
+            params[key] = _coerce(value, declared[key])
         specs.append(NodeSpec(node, tuple(node_command(node, path, params, python)), path, note))
     return specs
 

@@ -149,7 +149,7 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
            '--set', 'coordinator.sweep_duration_s=3.0', '--set', 'coordinator.settle_s=0.5')
     assert u.wait(280) == 0, u.output()[-6000:]
     out = u.output()
-    rmse = [float(x) for x in re.findall(r'k=\d+ RMSE ([\d.]+) N', out)]
+    rmse = [float(x) for x in re.findall(r'k=\s*\d+\s+RMSE ([\d.]+) N', out)]
     assert len(rmse) == 3, out[-4000:]
     run = tmp_path / 'runs' / 'graph-test'
     assert (run / 'run.yaml').is_file() and (run / 'iterations' / 'k002' / 'record.json').is_file()

@@ -86,7 +86,7 @@ def test_plan_graph_params_files_fallback_and_overrides(tmp_path):
     write_params(shipped, 'fan_output', {'flavour': 'ardupilot_servo'})
     write_params(shipped, 'coordinator', {'config_dir': ''})
     specs = plan_graph(['fan_output', 'coordinator'], mine, fallback_dir=shipped,
-                       overrides={'coordinator': {'sweep_duration_s': 3.0, 'run_name': 'r1'}},
+                       overrides={'coordinator': {'sweep_duration_s': 3, 'run_name': 'r1'}},
                        python='py')
     fan, coord = specs
     assert fan.params_file == shipped / 'fan_output.yaml' and 'no fan_output.yaml' in fan.note
@@ -94,7 +94,8 @@ def test_plan_graph_params_files_fallback_and_overrides(tmp_path):
     assert coord.note == ''
     assert coord.argv == ('py', '-m', 'wind_shaper.nodes.coordinator', '--ros-args',
                           '--params-file', str(mine.resolve() / 'coordinator.yaml'),
-                          '-p', f'config_dir:={mine.resolve()}', '-p', 'sweep_duration_s:=3.0',
+                          '-p', f'config_dir:={mine.resolve()}',
+                          '-p', 'sweep_duration_s:=3.0',   # an int for a float parameter
                           '-p', 'run_name:=r1')
     with pytest.raises(GraphError, match="no parameter 'sweep_s'.*sweep_duration_s"):
         plan_graph(['coordinator'], mine, overrides={'coordinator': {'sweep_s': 3}})

@@ -247,8 +247,7 @@ def _iterate(args, sup, client, stop) -> int:
             sup.say(f'wind-shaper up: iteration failed: {response.message}')
             return 1
         responses.append(response)
-        sup.say(f'wind-shaper up: k={response.iteration} RMSE {response.rmse_before:.3f} N '
-                f'(predicted next {response.rmse_predicted_after:.3f} N); {response.message}')
+        sup.say(_format_result(response))
     run_folder = _run_root(responses[-1].run_folder)
     if run_folder is None:
         sup.say(f'wind-shaper up: no run folder found at {responses[-1].run_folder!r} (the '
@@ -263,6 +262,16 @@ def _iterate(args, sup, client, stop) -> int:
     sup.say(f'wind-shaper up: run folder {run_folder}\nwind-shaper up: report {out}/ '
             f'(run.json, field_maps.png, error.png, pwm.png)')
     return 0
+
+
+def _format_result(response) -> str:
+    """The iteration's answer as `wind-shaper iterate` prints it (its formatter when present)."""
+    try:
+        from .service import format_result
+    except ImportError:
+        return (f'k={response.iteration} RMSE {response.rmse_before:.4f} N -> predicted '
+                f'{response.rmse_predicted_after:.4f} N; {response.message}')
+    return format_result(response)
 
 
 def _run_root(reported: str) -> Path | None:
