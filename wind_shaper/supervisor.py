@@ -36,7 +36,8 @@ import yaml
 
 from .core.errors import WindShaperError
 
-__all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'StopSignals',
+__all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'Stopped',
+           'StopSignals',
            'plan_graph', 'node_command', 'graph_env', 'format_value', 'CONFIG_ERROR_EXIT']
 
 #: Exit code of a node whose configuration is wrong (``wind_shaper.ros.runner``): never restarted.
@@ -50,6 +51,10 @@ class GraphError(WindShaperError):
 
 class NodeGaveUp(WindShaperError):
     """A node died and will not be restarted (restarts used up, disabled, or a config error)."""
+
+
+class Stopped(Exception):
+    """A wait was ended by a stop request (Ctrl-C / SIGTERM): not an error."""
 
 
 # ------------------------------------------------------------------------------------ planning
@@ -327,14 +332,18 @@ class Supervisor:
 
     # ------------------------------------------------------------------ start-up
     def wait_visible(self, visible: Callable[[], Iterable[str]], timeout_s: float = 60.0,
-                     interval_s: float = 0.1, names: Iterable[str] | None = None) -> float:
+                     interval_s: float = 0.1, names: Iterable[str] | None = None,
+                     should_stop: Callable[[], bool] | None = None) -> float:
         """Wait until the name of every started node (or of each of ``names``) is in
         ``visible()``; returns the time it took [s]. GraphError naming the node (with its log
-        tail) if one exits first or is not visible within ``timeout_s``."""
+        tail) if one exits first or is not visible within ``timeout_s``; Stopped as soon as
+        ``should_stop()``."""
         t0 = self.clock()
         wanted = [n for n, c in self._children.items() if c.process is not None
                   and (names is None or n in set(names))]
         while True:
+            if should_stop is not None and should_stop():
+                raise Stopped('stopped while the graph was starting')
             for name in wanted:
                 code = self._children[name].process.poll()
                 if code is not None:

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from wind_shaper.supervisor import (CONFIG_ERROR_EXIT, GraphError, NodeGaveUp, NodeSpec,
-                                    RestartPolicy, StopSignals, Supervisor, format_value,
+                                    RestartPolicy, Stopped, StopSignals, Supervisor, format_value,
                                     graph_env, node_command, plan_graph)
 
 QUICK = RestartPolicy(backoff_s=0.05, max_backoff_s=0.2)
@@ -188,6 +188,16 @@ def test_a_node_that_never_appears_is_named_with_its_log(script, supervisors):
         sup.wait_visible(lambda: ['a'], timeout_s=0.5)
     assert 'node shy did not appear in the ROS graph within 0.5 s' in str(err.value)
     assert 'hello from shy.py' in str(err.value)
+
+
+def test_a_stop_request_ends_the_start_up_wait_at_once(script, supervisors):
+    sup = supervisors([script('a', RUNS)])
+    sup.start()
+    t0 = time.monotonic()
+    with pytest.raises(Stopped):
+        sup.wait_visible(lambda: [], timeout_s=30.0,
+                         should_stop=lambda: time.monotonic() - t0 > 0.2)
+    assert time.monotonic() - t0 < 2.0
 
 
 def test_a_node_that_dies_at_start_up_is_reported_with_exit_code_and_tail(script, supervisors):

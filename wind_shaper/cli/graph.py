@@ -173,8 +173,8 @@ def _cmd_up(args) -> int:
     from ..core.config import default_config_dir
     from ..core.errors import WindShaperError
     from ..ros import names
-    from ..supervisor import (GraphError, NodeGaveUp, RestartPolicy, StopSignals, Supervisor,
-                              graph_env, plan_graph)
+    from ..supervisor import (GraphError, NodeGaveUp, RestartPolicy, Stopped, StopSignals,
+                              Supervisor, graph_env, plan_graph)
     if (args.iterations is None) != (args.target is None):
         print('wind-shaper up: --iterations and --target go together', file=sys.stderr)
         return 2
@@ -204,9 +204,11 @@ def _cmd_up(args) -> int:
             client = _GraphClient(env)
             if args.sim:   # the rig first: the drivers then find its sockets open
                 sup.start([names.SIM_TUNNEL])
-                sup.wait_visible(client.sim_ready, args.startup_timeout, names=[names.SIM_TUNNEL])
+                sup.wait_visible(client.sim_ready, args.startup_timeout, names=[names.SIM_TUNNEL],
+                                 should_stop=stop)
             sup.start()
-            sup.wait_visible(client.visible, max(1.0, args.startup_timeout - (time.monotonic() - t0)))
+            sup.wait_visible(client.visible, max(1.0, args.startup_timeout - (time.monotonic() - t0)),
+                             should_stop=stop)
             took = time.monotonic() - t0
             pids = ', '.join(f'{n} {pid}' for n, pid in sup.pids().items())
             sup.say(f'wind-shaper up: all {len(nodes)} nodes are up in {took:.1f} s (pids: {pids}).')
@@ -218,7 +220,7 @@ def _cmd_up(args) -> int:
         except (GraphError, NodeGaveUp, WindShaperError) as exc:
             sup.say(f'wind-shaper up: error: {exc}')
             code = 1
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, Stopped):
             pass
         finally:
             if stop():
@@ -227,9 +229,26 @@ def _cmd_up(args) -> int:
                 client.close()
             codes = sup.shutdown()
             left = sup.pids()
-            sup.say(f'wind-shaper up: stopped ({", ".join(f"{n}: {c}" for n, c in codes.items())})'
+            sup.say(f'wind-shaper up: stopped ({_codes_text(codes)})'
                     + (f'; STILL RUNNING: {left}' if left else ''))
     return code
+
+
+def _codes_text(codes: dict) -> str:
+    """{node: exit code} as "node: 0, other: SIGKILL" (nodes never started left out)."""
+    import signal
+    parts = []
+    for name, code in codes.items():
+        if code is None:
+            continue
+        text = str(code)
+        if code < 0:
+            try:
+                text = signal.Signals(-code).name
+            except ValueError:
+                pass
+        parts.append(f'{name}: {text}')
+    return ', '.join(parts) or 'no node was running'
 
 
 def _iterate(args, sup, client, stop) -> int:
