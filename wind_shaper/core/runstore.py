@@ -57,8 +57,18 @@ def _atomic_write_text(path: Path, text: str) -> None:
     _atomic_write_bytes(path, text.encode())
 
 
+def _plain(value):
+    """json.dumps fallback: numpy arrays and scalars as lists and numbers, anything else as text
+    (an update rule's ``info`` may hold them)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return repr(value)
+
+
 def _json(doc) -> str:
-    return json.dumps(doc, indent=1, allow_nan=True)
+    return json.dumps(doc, indent=1, allow_nan=True, default=_plain)
 
 
 def _floats(a) -> list:

@@ -40,7 +40,8 @@ def iteration(sim, k, pwm_before, pwm_after, target='parabolic'):
     return IterationData(k, target, np.asarray(pwm_before, float), np.asarray(pwm_after, float),
                          0.8 / (k + 1), rmse, 0.9 * rmse, est, target_values, sweep,
                          model='FanJets(...)', timestamps={'started': 1.0 + k, 'finished': 2.0 + k},
-                         info={'gain': 0.8})
+                         info={'gain': 0.8, 'quiet': np.bool_(k > 0), 'radius': np.float64(0.1),
+                               'weights': np.arange(3.0)})
 
 
 def test_new_run_starts_before_iteration_zero(tmp_path, info):
@@ -79,6 +80,9 @@ def test_iterations_are_recorded_and_history_rebuilds_records(tmp_path, info, si
         assert rec.error == pytest.approx(d.rmse ** 2, rel=1e-12)
         assert rec.step_size == d.step_size
         assert rec.info['rmse_predicted_after_N'] == pytest.approx(0.9 * d.rmse)
+        # the update rule's info survives as plain JSON (numpy values as numbers and lists)
+        assert rec.info['quiet'] is (d.k > 0) and rec.info['weights'] == [0.0, 1.0, 2.0]
+        assert rec.info['radius'] == 0.1 and rec.info['gain'] == 0.8
     doc = store.load_record(1)
     assert doc['timestamps'] == {'started': 2.0, 'finished': 3.0} and doc['model'] == 'FanJets(...)'
     assert doc['fan_names'] == list(FANS) and doc['n_samples'] == 600

@@ -1,0 +1,262 @@
+"""`wind-shaper iterate | status | cancel`: talk to a running coordinator (the node graph).
+
+    wind-shaper iterate --count 3                # three iterations, a live progress line each
+    wind-shaper iterate --target uniform:2.5     # change the run's target, then iterate
+    wind-shaper status                           # the coordinator's latest status, then exit
+    wind-shaper cancel                           # stop the running iteration at its next step
+
+Each command is a short-lived ROS node; every wait is bounded. rclpy is imported inside the
+command functions, so `wind-shaper --help` and the in-process commands work without ROS.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+from ..ros import names
+
+ROS2_EQUIVALENT = (f'ros2 service call {names.RUN_ITERATION} wind_shaper_msgs/srv/RunIteration '
+                   f'"{{target: parabolic}}"')
+START_HINT = 'start the graph with `wind-shaper up --sim`'
+#: While an iteration runs the coordinator publishes its status at 2 Hz; this long without one
+#: means it is gone [s].
+STALE_STATUS_S = 10.0
+RUNNING_STATES = ('commanding', 'sweeping', 'estimating', 'updating')
+
+
+def _not_running(what: str, wait_s: float) -> int:
+    print(f'no coordinator answered on {what} within {wait_s:g} s: {START_HINT}', file=sys.stderr)
+    return 2
+
+
+class _Session:
+    """A private rclpy context with one node and a single-threaded executor, for a CLI command.
+
+    rclpy's own SIGINT handling is off, so Ctrl-C arrives as KeyboardInterrupt while the context
+    still works (iterate uses it to cancel the running iteration)."""
+
+    def __init__(self):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(f'wind_shaper_cli_{os.getpid()}', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+    def spin_until(self, predicate, timeout_s: float, on_tick=None) -> bool:
+        """Spin until ``predicate()`` or ``timeout_s`` [s]; ``on_tick()`` runs between spins."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self.executor.spin_once(timeout_sec=min(0.1, left))
+            if on_tick is not None:
+                on_tick()
+        return True
+
+    def wait_for_service(self, client, timeout_s: float) -> bool:
+        return self.spin_until(client.service_is_ready, timeout_s)
+
+    def call(self, client, request, timeout_s: float):
+        """The response, or None when none came within ``timeout_s`` [s]."""
+        future = client.call_async(request)
+        if not self.spin_until(future.done, timeout_s):
+            client.remove_pending_request(future)
+            return None
+        return future.result()
+
+    def latest_status(self):
+        """Subscribe to the latched status; returns a one-element list updated in place."""
+        from wind_shaper_msgs.msg import IterationStatus
+
+        from ..ros import qos
+        latest = [None, 0.0]
+
+        def keep(msg):
+            latest[0], latest[1] = msg, time.monotonic()
+
+        self.node.create_subscription(IterationStatus, names.STATUS, keep, qos.LATCHED)
+        return latest
+
+
+# ---------------------------------------------------------------------------------- formatting
+def _pwm_text(fan_names, pwm) -> str:
+    return ' '.join(f'{n}={100 * u:.1f}' for n, u in zip(fan_names, pwm))
+
+
+def _progress_line(status) -> str:
+    bar_len = 20
+    done = int(round(bar_len * min(max(status.progress, 0.0), 1.0)))
+    samples = f'  {status.samples} samples' if status.samples else ''
+    return (f'k={status.iteration:<3d} {status.state:<11s} [{"#" * done}{"-" * (bar_len - done)}] '
+            f'{100 * status.progress:3.0f}%{samples}')
+
+
+def format_result(r) -> str:
+    """One iteration's answer: k, RMSE before -> predicted after [N], PWMs before -> after [%]."""
+    pwm = ' '.join(f'{n} {100 * a:.1f}->{100 * b:.1f}'
+                   for n, a, b in zip(r.fan_names, r.pwm_before, r.pwm_after))
+    return (f'k={r.iteration:2d}  RMSE {r.rmse_before:.4f} N -> predicted {r.rmse_predicted_after:.4f} N'
+            f'  max std {r.max_std:.3f} N\n      PWM% {pwm}\n      record: {r.run_folder}')
+
+
+def format_status(s) -> str:
+    rmse = 'none yet' if math.isnan(s.rmse) else f'{s.rmse:.4f} N'
+    lines = [f'coordinator: {s.state}, iteration {s.iteration} ({100 * s.progress:.0f}%)',
+             f'target: {s.target}', f'last RMSE: {rmse}',
+             f'commands [%]: {_pwm_text(s.fan_names, s.pwm)}', f'run folder: {s.run_folder}']
+    if s.samples:
+        lines.insert(2, f'samples: {s.samples}')
+    if s.message:
+        lines.append(f'message: {s.message}')
+    return '\n'.join(lines)
+
+
+# ---------------------------------------------------------------------------------- commands
+def _cmd_iterate(args) -> int:
+    from std_srvs.srv import Trigger
+    from wind_shaper_msgs.srv import RunIteration
+    if args.count < 1:
+        print('--count must be >= 1', file=sys.stderr)
+        return 2
+    tty = sys.stdout.isatty()
+    with _Session() as session:
+        client = session.node.create_client(RunIteration, names.RUN_ITERATION)
+        if not session.wait_for_service(client, args.wait):
+            return _not_running(names.RUN_ITERATION, args.wait)
+        status = session.latest_status()
+        shown = ['']
+
+        def show():
+            s = status[0]
+            if s is None or s.state not in RUNNING_STATES:
+                return  # idle or a past iteration's end: the response tells how this one ended
+            line = _progress_line(s)
+            if tty:
+                print('\r' + line.ljust(72), end='', flush=True)
+            elif s.state != shown[0]:
+                print(line, flush=True)
+            shown[0] = s.state
+
+        for i in range(args.count):
+            request = RunIteration.Request(target=args.target if i == 0 else '',
+                                           step_gain=args.gain, timeout_s=args.timeout)
+            future = client.call_async(request)
+            started = time.monotonic()
+            shown[0] = ''
+
+            def finished_or_gone():
+                if future.done():
+                    return True
+                heard = max(status[1], started)
+                return time.monotonic() - heard > STALE_STATUS_S
+
+            limit = args.timeout + 60.0 if args.timeout > 0 else 24 * 3600.0
+            try:
+                session.spin_until(finished_or_gone, limit, on_tick=show)
+            except KeyboardInterrupt:
+                if tty:
+                    print()
+                cancel = session.node.create_client(Trigger, names.CANCEL_ITERATION)
+                answer = session.call(cancel, Trigger.Request(), args.wait)
+                print('interrupted: ' + (answer.message if answer is not None else
+                                         'the coordinator did not answer the cancel request'),
+                      file=sys.stderr)
+                session.spin_until(future.done, 10.0)
+                return 130
+            if tty:
+                print('\r' + ' ' * 72 + '\r', end='')
+            if not future.done():
+                client.remove_pending_request(future)
+                print(f'no answer from the coordinator (no status for {STALE_STATUS_S:g} s or the '
+                      f'time limit passed): check that it is still running', file=sys.stderr)
+                return 2
+            r = future.result()
+            if not r.success:
+                print(f'iteration refused or failed: {r.message}', file=sys.stderr)
+                return 1
+            print(format_result(r), flush=True)
+    return 0
+
+
+def _cmd_status(args) -> int:
+    with _Session() as session:
+        status = session.latest_status()
+        if not session.spin_until(lambda: status[0] is not None, args.wait):
+            print(f'no coordinator status on {names.STATUS} within {args.wait:g} s: {START_HINT}',
+                  file=sys.stderr)
+            return 2
+        print(format_status(status[0]))
+    return 0
+
+
+def _cmd_cancel(args) -> int:
+    from std_srvs.srv import Trigger
+    with _Session() as session:
+        client = session.node.create_client(Trigger, names.CANCEL_ITERATION)
+        if not session.wait_for_service(client, args.wait):
+            return _not_running(names.CANCEL_ITERATION, args.wait)
+        answer = session.call(client, Trigger.Request(), args.wait)
+        if answer is None:
+            print(f'the coordinator did not answer within {args.wait:g} s', file=sys.stderr)
+            return 2
+        print(answer.message, file=sys.stdout if answer.success else sys.stderr)
+        return 0 if answer.success else 1
+
+
+def _wait_arg(p) -> None:
+    p.add_argument('--wait', type=float, default=5.0, metavar='S',
+                   help='how long to wait for the coordinator to answer [s] (default 5)')
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        'iterate', help='run iterations on the node graph (the coordinator)',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description='Call the coordinator\'s run_iteration service N times, with a live progress '
+                    'line from its status topic, and print each result (k, RMSE before -> '
+                    'predicted after, PWMs). Ctrl-C cancels the running iteration.',
+        epilog=f'On a full ROS 2 install the same call is:\n  {ROS2_EQUIVALENT}')
+    p.add_argument('--target', default='',
+                   help='change the run\'s target first: uniform[:F] | gaussian[@FAN] | parabolic | '
+                        'expr:<f(x,y)> | csv:<file> (default: keep it)')
+    p.add_argument('--gain', type=float, default=0.0,
+                   help='step gain, lambda_k = gain / (k + 1) (default: shaping.yaml)')
+    p.add_argument('--timeout', type=float, default=0.0, metavar='S',
+                   help='iteration timeout [s] (default: the coordinator\'s iteration_timeout_s)')
+    p.add_argument('--count', type=int, default=1, metavar='N', help='iterations to run (default 1)')
+    _wait_arg(p)
+    p.set_defaults(func=_cmd_iterate)
+
+    p = subparsers.add_parser(
+        'status', help='print the coordinator\'s latest status and exit',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f'On a full ROS 2 install: ros2 topic echo --once {names.STATUS}')
+    _wait_arg(p)
+    p.set_defaults(func=_cmd_status)
+
+    p = subparsers.add_parser(
+        'cancel', help='stop the running iteration at its next step (the fans keep the last '
+                       'completed iteration\'s commands)',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f'On a full ROS 2 install: ros2 service call {names.CANCEL_ITERATION} '
+               f'std_srvs/srv/Trigger')
+    _wait_arg(p)
+    p.set_defaults(func=_cmd_cancel)
+
+
+__all__ = ['register', 'format_result', 'format_status', 'ROS2_EQUIVALENT']
