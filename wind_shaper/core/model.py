@@ -392,6 +392,11 @@ def term_from_dict(spec: Mapping, fans: FanArray) -> Term:
         return out
     cls = TERMS.get(kind)
     if cls is None:
+        # The candidate-effect library registers its kinds on import; load it on first need so
+        # a model file naming them reads anywhere (the workbench's `model add` writes such files).
+        from . import effects  # noqa: F401
+        cls = TERMS.get(kind)
+    if cls is None:
         raise ModelFileError(f'unknown model term kind {kind!r}; known kinds: {sorted(TERMS)}')
     try:
         return cls(fans, **spec)
