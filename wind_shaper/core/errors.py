@@ -23,3 +23,7 @@ class SweepError(WindShaperError, ValueError):
 
 class FrameError(WindShaperError, ValueError):
     """A transform or pose cannot be used (NaN, a quaternion that is not of unit norm)."""
+
+
+class RunFolderError(WindShaperError):
+    """A run folder cannot be created, reopened or written (another tunnel, bad or missing files)."""

@@ -29,17 +29,27 @@ def load_model(path, fans: FanArray) -> Term:
     """Read a model file written by ``save_model`` and build it for ``fans``."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except FileNotFoundError:
         raise ModelFileError(f'model file {path} does not exist: fit one with '
                              f'`wind-shaper calibrate --sim --out {path}`') from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise ModelFileError(f'model file {path} is not readable YAML ({exc}); restore it or '
-                             f'fit a new one with `wind-shaper calibrate`') from None
+    except OSError as exc:
+        raise ModelFileError(f'model file {path} cannot be read ({exc})') from None
+    return model_from_text(text, fans, source=str(path))
+
+
+def model_from_text(text: str, fans: FanArray, source: str = 'model text') -> Term:
+    """Build a model from the text of a model file (e.g. one sent over a service).
+    ``source`` names it in error messages."""
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ModelFileError(f'{source} is not readable YAML ({exc}); restore it or fit a new '
+                             f'one with `wind-shaper calibrate`') from None
     if not isinstance(doc, dict) or doc.get('wind_shaper_model') != FORMAT_VERSION or 'model' not in doc:
-        raise ModelFileError(f'{path} is not a wind_shaper model file (version {FORMAT_VERSION} '
+        raise ModelFileError(f'{source} is not a wind_shaper model file (version {FORMAT_VERSION} '
                              f'with a "model" section); fit one with `wind-shaper calibrate`')
     try:
         return term_from_dict(doc['model'], fans)
     except ModelFileError as exc:
-        raise ModelFileError(f'{path}: {exc}') from None
+        raise ModelFileError(f'{source}: {exc}') from None

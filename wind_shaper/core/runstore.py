@@ -31,16 +31,12 @@ from typing import Mapping, Optional, Sequence
 import numpy as np
 import yaml
 
-from .errors import WindShaperError
+from .errors import RunFolderError
 from .field import FieldEstimate
 from .loop import IterationRecord
 from .tunnel import Sweep
 
 FORMAT_VERSION = 1
-
-
-class RunFolderError(WindShaperError):
-    """A run folder cannot be created, reopened or written (another tunnel, bad or missing files)."""
 
 
 def _atomic_write_bytes(path: Path, data: bytes) -> None:

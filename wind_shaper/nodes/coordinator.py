@@ -26,8 +26,6 @@ PWM commands are fractions 0..1 of full PWM in tunnel.yaml's fan order; forces [
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import threading
 import time
 from dataclasses import asdict, dataclass, fields
@@ -47,7 +45,7 @@ from ..app import Setup
 from ..core.config import read_yaml
 from ..core.errors import ConfigError, WindShaperError
 from ..core.field import FieldEstimate, closest_samples
-from ..core.modelfile import load_model
+from ..core.modelfile import load_model, model_from_text
 from ..core.runstore import IterationData, RunInfo, RunStore
 from ..core import update as core_update
 from ..core.update import UpdateInput
@@ -574,16 +572,10 @@ class CoordinatorNode(Node):
 
     def _model_from_text(self, text: str, source: str):
         """Build a model file's prior for the tunnel's fans and check it gives a finite Jacobian."""
-        fd, tmp = tempfile.mkstemp(suffix='.yaml', prefix='wind_shaper_model_')
         try:
-            with os.fdopen(fd, 'w') as fh:
-                fh.write(text)
-            try:
-                model = load_model(tmp, self._setup.geometry.fans)
-            except WindShaperError as exc:
-                raise ConfigError(str(exc).replace(tmp, source)) from None
-        finally:
-            os.unlink(tmp)
+            model = model_from_text(text, self._setup.geometry.fans, source=source)
+        except WindShaperError as exc:
+            raise ConfigError(str(exc)) from None
         J = model.jacobian(self._U, self._key_points)
         if J.shape != (len(self._key_points), len(self._fan_names)) or not np.all(np.isfinite(J)):
             raise ConfigError(f'{source}: the model\'s Jacobian at the current commands is not '
