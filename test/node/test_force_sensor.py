@@ -220,3 +220,23 @@ def test_config_file_lists_every_parameter(ros_context):
         assert node.params == ForceSensorParams(autostart=False)
     finally:
         node.destroy_node()
+
+
+def test_a_sensor_that_starts_late_still_streams(harness):
+    # The node asks for the stream before the sensor listens (it booted later, or rebooted):
+    # the first request is lost, so the node must ask again until samples arrive.
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(('127.0.0.1', 0))
+        port = probe.getsockname()[1]
+
+    class Late:
+        port = None
+        calibration = None
+    late = Late()
+    late.port = port
+    late.calibration = type('Cal', (), {'counts_per_force': 1e6, 'counts_per_torque': 1e6})()
+    harness.start(late, restart_after_s=0.3)
+    time.sleep(0.8)  # several requests go nowhere
+    assert not harness.wrenches
+    with SimNetFtServer(source, port=port, rate_hz=500.0):
+        assert wait_for(lambda: len(harness.wrenches) >= 50, timeout_s=5.0), len(harness.wrenches)

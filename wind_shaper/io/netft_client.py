@@ -142,6 +142,11 @@ class NetFtClient:
             self._thread.start()
         self._send(RdtCommand.START_REALTIME, sample_count)
 
+    def request_stream(self, sample_count: int = 0) -> None:
+        """Send the start-streaming request again without touching the counters (a sensor
+        that booted after us, or rebooted, never got the first one)."""
+        self._send(RdtCommand.START_REALTIME, sample_count)
+
     def bias(self) -> None:
         """Ask the sensor to zero its current reading (software bias)."""
         self._send(RdtCommand.SET_SOFTWARE_BIAS)

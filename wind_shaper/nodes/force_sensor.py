@@ -53,6 +53,9 @@ class ForceSensorParams:
                                 'with the plate at rest and the fans off)')
     autostart: bool = param(True, 'configure and activate at start (else wait for lifecycle '
                             'transitions)')
+    restart_after_s: float = param(1.0, 'while active with no sample for this long, send the '
+                                   'start request again (sensor booted late or rebooted) [s]',
+                                   low=0.1, high=60.0)
 
     def __post_init__(self):
         if self.force_sign not in (-1, 1):
@@ -87,6 +90,9 @@ class ForceSensorNode(LifecycleNode):
         self._pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.create_service(Trigger, names.FORCE_BIAS, self._handle_bias)
         self.create_timer(1.0, self._on_diagnostics_timer)
+        self._last_request = time.monotonic()
+        self._rerequests = 0
+        self.create_timer(min(p.restart_after_s, 1.0) / 2, self._on_stream_watch_timer)
         if p.autostart:
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ConfigError(f'force_sensor could not open its socket: '
@@ -118,6 +124,7 @@ class ForceSensorNode(LifecycleNode):
                 self._published = 0
                 self._reported = (time.monotonic(), 0, NetFtStreamStats())
                 self._client.start()
+                self._last_request = time.monotonic()
                 if p.bias_on_start:
                     self._client.bias()
         except TransportError as exc:
@@ -202,6 +209,27 @@ class ForceSensorNode(LifecycleNode):
         response.message = 'bias request sent to the sensor'
         return response
 
+    def _on_stream_watch_timer(self) -> None:
+        """Re-send the start request while streaming should run but nothing arrives."""
+        client, now = self._client, time.monotonic()
+        if self._state != 'active' or client is None:
+            return
+        last = max(self._last_sample or 0.0, self._last_request)
+        if now - last < self.params.restart_after_s:
+            return
+        try:
+            client.request_stream()
+        except TransportError as exc:
+            self.get_logger().warning(f'cannot re-send the start request: {exc}',
+                                      throttle_duration_sec=10.0)
+            return
+        self._last_request = now
+        self._rerequests += 1
+        self.get_logger().warning(
+            f'no samples from {self.params.sensor_host}:{self.params.sensor_port} for '
+            f'{self.params.restart_after_s} s: start request sent again ({self._rerequests})',
+            throttle_duration_sec=5.0)
+
     def _on_diagnostics_timer(self) -> None:
         now = time.monotonic()
         client = self._client
@@ -216,6 +244,7 @@ class ForceSensorNode(LifecycleNode):
         values.update(state=self._state, published=published, rate_hz=rate,
                       rejected_source=stats.rejected, stale=stats.stale, resyncs=stats.resyncs,
                       last_sample_age_s='never' if age is None else age,
+                      start_requests_resent=self._rerequests,
                       last_fault=self._last_fault)
         del values['rejected']
         p = self.params
