@@ -4,27 +4,41 @@
 executor (or the events executor for high-rate streams) until Ctrl-C / SIGTERM / external
 shutdown, then destroys the node (so its ``destroy_node`` can make hardware safe) and shuts
 rclpy down. A configuration error is printed as one clear line and exits with code 2.
+
+rclpy's own SIGINT handler is not installed: it shuts the context down at once, so a node's
+``destroy_node`` (fans to safe, streams stopped) would run on a dead context and reader threads
+would publish into it. Instead SIGINT and SIGTERM only set a flag (raising from a signal
+handler can land inside a pybind11 call and come out as a RuntimeError); the main thread spins
+in 0.2 s slices, sees the flag, and destroys the node while the context is still valid.
 """
 from __future__ import annotations
 
 import signal
 import sys
+import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from ..core.errors import WindShaperError
 
 
-def _sigterm_as_interrupt(signum, frame):
-    # SIGTERM (e.g. from the supervisor) takes the same clean path as Ctrl-C.
-    raise KeyboardInterrupt
+_stop_requested = threading.Event()
+
+
+def _request_stop(signum, frame):
+    # SIGINT and SIGTERM (e.g. from the supervisor) take the same clean path.
+    _stop_requested.set()
 
 
 def run(node_cls, args=None, *, executor: str = 'multi', threads: int = 4) -> int:
-    rclpy.init(args=args)
-    signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
-    node = None
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    _stop_requested.clear()
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
+    node = ex = None
     code = 0
     try:
         node = node_cls()
@@ -34,21 +48,18 @@ def run(node_cls, args=None, *, executor: str = 'multi', threads: int = 4) -> in
         else:
             ex = MultiThreadedExecutor(num_threads=threads)
         ex.add_node(node)
-        if executor == 'events':
-            # EventsExecutor.spin() stays in C++ and never lets the Python SIGINT/SIGTERM
-            # handlers run: spin in slices of 0.2 s instead.
-            from rclpy.task import Future
-            never = Future()
-            while rclpy.ok():
-                ex.spin_until_future_complete(never, timeout_sec=0.2)
-        else:
-            ex.spin()
+        # spin() waits in C++ and would never let the Python signal handlers run.
+        never = Future()
+        while rclpy.ok() and not _stop_requested.is_set():
+            ex.spin_until_future_complete(never, timeout_sec=0.2)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except WindShaperError as exc:
         print(f'{node_cls.__name__}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
+        if ex is not None:
+            ex.shutdown(timeout_sec=2.0)  # let running callbacks finish before the node goes
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
