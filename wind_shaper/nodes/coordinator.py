@@ -505,7 +505,8 @@ class CoordinatorNode(Node):
             rmse=float(np.sqrt(np.mean((mean - target_values) ** 2))),
             rmse_predicted_after=float(np.sqrt(np.mean((predicted - target_values) ** 2))),
             estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
-            timestamps=stamps, info={'gain': getattr(rule, 'gain', None), **dict(step.info)})
+            timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
+                                     'estimator_compute_s': float(answer.compute_s), **dict(step.info)})
 
     @staticmethod
     def _past_iteration(U, mean, std, info):

@@ -121,8 +121,10 @@ class FieldEstimatorNode(Node):
             pwm = self._request_pwm(request)
             finite = pose_t[np.isfinite(pose_t)]
             t_start = float(finite.min()) if len(finite) else 0.0
+            t_compute = time.perf_counter()
             sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
             est = self._estimator.estimate(sweep, self._key_points)
+            response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             with self._lock:
                 self._collecting = was_collecting  # a failed estimate changes nothing
