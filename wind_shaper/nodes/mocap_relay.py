@@ -28,8 +28,9 @@ from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 
 #: Best effort matches both best-effort (vrpn_mocap's default sensor-data QoS) and reliable
-#: publishers.
-MOCAP_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT,
+#: publishers. Depth 100 holds 1 s of poses at 100 Hz: with depth 10 the relay lost 10-40 % of
+#: the poses whenever the machine was busy.
+MOCAP_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
                        history=HistoryPolicy.KEEP_LAST)
 
 
@@ -150,7 +151,9 @@ class MocapRelayNode(Node):
 
 
 def main(args=None):
-    return run(MocapRelayNode, args)
+    # The events executor costs a fraction of the multi-threaded one per message, so the relay
+    # keeps up with 100 Hz poses on a busy machine.
+    return run(MocapRelayNode, args, executor='events')
 
 
 if __name__ == '__main__':
