@@ -29,10 +29,11 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from std_srvs.srv import Trigger
 
 from ..core.errors import ConfigError
-from ..core.protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample
+from ..core.protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample, SampleClock
 from ..io import LinkConfigError, NetFtClient, NetFtStreamStats, TransportError
 from ..ros import diagnostics as diag
 from ..ros import names, qos
+from ..ros.convert import seconds_to_stamp
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 
@@ -53,6 +54,10 @@ class ForceSensorParams:
                                 'with the plate at rest and the fans off)')
     autostart: bool = param(True, 'configure and activate at start (else wait for lifecycle '
                             'transitions)')
+    sample_rate_hz: float = param(1000.0, 'the sensor\'s RDT output rate (its configuration); '
+                                  'samples are stamped from their sequence numbers at this rate, '
+                                  'anchored on the least-delayed packet, so host lag does not '
+                                  'shift them; 0 = stamp at arrival [Hz]', low=0.0, high=10000.0)
     restart_after_s: float = param(1.0, 'while active with no sample for this long, send the '
                                    'start request again (sensor booted late or rebooted) [s]',
                                    low=0.1, high=60.0)
@@ -79,6 +84,7 @@ class ForceSensorNode(LifecycleNode):
         self.params = p = declare_parameters(self, ForceSensorParams)
         self._sign = float(p.force_sign)
         self._client: NetFtClient | None = None
+        self._sample_clock = SampleClock(p.sample_rate_hz) if p.sample_rate_hz > 0 else None
         self._lock = threading.Lock()
         self._state = 'unconfigured'
         self._configure_error = ''
@@ -125,6 +131,8 @@ class ForceSensorNode(LifecycleNode):
                 self._reported = (time.monotonic(), 0, NetFtStreamStats())
                 self._client.start()
                 self._last_request = time.monotonic()
+                if self._sample_clock is not None:
+                    self._sample_clock.reset()
                 if p.bias_on_start:
                     self._client.bias()
         except TransportError as exc:
@@ -180,7 +188,12 @@ class ForceSensorNode(LifecycleNode):
                                       throttle_duration_sec=2.0)
             return
         msg = WrenchStamped()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        now = self.get_clock().now()
+        if self._sample_clock is None:
+            msg.header.stamp = now.to_msg()
+        else:
+            msg.header.stamp = seconds_to_stamp(
+                self._sample_clock.stamp(sample.rdt_sequence, now.nanoseconds * 1e-9))
         msg.header.frame_id = self.params.frame_id
         (fx, fy, fz), (tx, ty, tz) = sample.force, sample.torque
         s = self._sign

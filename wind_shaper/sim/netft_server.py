@@ -223,8 +223,13 @@ class SimNetFtServer(UdpPeer):
     def _emit_due(self, now: float) -> None:
         due = int((now - self._t_start) * self.rate_hz) + 1 - self._k
         if due > self.max_batch:
+            # Far behind (the host stalled): skip those records. A real sensor samples on its
+            # own clock, so their sequence numbers are used up and the client counts them lost;
+            # numbers stay in step with sample time, which the client's SampleClock relies on.
             skip = due - self.max_batch
             self._t_start += skip / self.rate_hz
+            self._rdt_seq = (self._rdt_seq + skip) % _U32
+            self._ft_seq = (self._ft_seq + skip) % _U32
             with self._lock:
                 self._log.late_skips += skip
             due = self.max_batch

@@ -66,7 +66,7 @@ def test_one_second_at_1khz_with_faults_counts_exactly_what_the_server_did(rig, 
     elapsed = time.perf_counter() - t0
     s = client.stats
     assert log.generated == 1000 and log.dropped and log.reordered and log.duplicated
-    assert s.lost == len(log.dropped) + len(log.truncated)
+    assert s.lost == len(log.dropped) + len(log.truncated) + log.late_skips
     assert s.out_of_order == len(log.reordered)
     assert s.duplicates == len(log.duplicated)
     assert s.malformed == len(log.truncated)

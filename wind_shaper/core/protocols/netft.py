@@ -460,3 +460,49 @@ class RdtSequenceTracker:
         return (f'RdtSequenceTracker(window={self.window}, newest={self._newest}, '
                 f'received={s.received}, lost={s.lost}, out_of_order={s.out_of_order}, '
                 f'duplicates={s.duplicates})')
+
+
+class SampleClock:
+    """Sample times of a fixed-rate stream, from its sequence numbers instead of arrival times.
+
+    A Net F/T samples on its own crystal at ``rate_hz`` and numbers every record; the host
+    receives them late by a delay that jumps whenever the host is busy. Stamping at arrival
+    shifts each force sample by that delay, so a plate moving at 2 m/s is 20 cm off for every
+    100 ms of lag. Here t_n = offset + n / rate_hz, with n the unwrapped rdt_sequence and offset
+    the smallest (arrival - n / rate_hz) seen, i.e. the least-delayed record's. The offset may
+    rise by at most ``max_drift`` seconds per second (the two crystals drift apart by ppm), so a
+    lag spike never moves it. A jump of more than ``restart_s`` in the sequence (the sensor
+    restarted) starts over. Times are in the clock of ``arrival`` [s].
+    """
+
+    def __init__(self, rate_hz: float, max_drift: float = 200e-6, restart_s: float = 10.0):
+        if not rate_hz > 0:
+            raise ProtocolConfigError(f'SampleClock needs the sensor rate > 0 Hz, got {rate_hz}')
+        self.rate_hz = float(rate_hz)
+        self.max_drift = float(max_drift)
+        self.restart_n = int(restart_s * rate_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        self._last_seq = None
+        self._n = 0
+        self._offset = None
+        self._last_arrival = None
+
+    def stamp(self, rdt_sequence: int, arrival: float) -> float:
+        """Sample time [s] of record ``rdt_sequence`` that arrived at ``arrival`` [s]."""
+        if self._last_seq is not None:
+            step = ((rdt_sequence - self._last_seq + (1 << 31)) % (1 << 32)) - (1 << 31)
+            if abs(step) > self.restart_n:
+                self.reset()
+            else:
+                self._n += step
+        self._last_seq = rdt_sequence
+        lag_free = arrival - self._n / self.rate_hz
+        if self._offset is None or lag_free < self._offset:
+            self._offset = lag_free
+        else:
+            rise = self.max_drift * max(arrival - self._last_arrival, 0.0)
+            self._offset = min(lag_free, self._offset + rise)
+        self._last_arrival = arrival
+        return self._offset + self._n / self.rate_hz
