@@ -199,8 +199,11 @@ class SimTunnel(Node):
         self.live.apply(pwm)
 
     def _force_source(self, t: float):
-        """Net F/T thread: (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]) on the plate now."""
-        return 0.0, 0.0, self.live.force(), 0.0, 0.0, 0.0
+        """Net F/T thread: (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]) on the plate at the record's sample
+        time (t [s] since the stream started). A busy host makes the server send records in
+        catch-up batches; each must still carry the force where the plate was at its own time,
+        as a real sensor's would."""
+        return 0.0, 0.0, self.live.force(self._netft.stream_start + t), 0.0, 0.0, 0.0
 
     def _mocap_loop(self) -> None:
         """Camera frames at exact ticks k / mocap_rate_hz: each pose is the plate at its tick,

@@ -144,6 +144,12 @@ class SimNetFtServer(UdpPeer):
         """Address the last start request came from."""
         return self._client
 
+    @property
+    def stream_start(self) -> float:
+        """time.monotonic() [s] of the current stream's t = 0: record t is taken at
+        ``stream_start + t`` (moved forward when the server skips records it fell behind on)."""
+        return self._t_start
+
     def fault_log(self) -> NetFtFaultLog:
         with self._lock:
             g = self._log
