@@ -15,7 +15,7 @@ from .errors import ConfigError
 from .field import FieldEstimate, FieldEstimator
 from .model import Term
 from .tunnel import Sweep, Tunnel
-from .update import UpdateInput, UpdateRule
+from .update import PastIteration, UpdateInput, UpdateRule
 
 
 def mean_squared_error(field_values: np.ndarray, target: np.ndarray) -> float:
@@ -98,8 +98,13 @@ class ShapingLoop:
         next_pwm = step_size = None
         info = {}
         if update:
-            J = self.model.jacobian(self.U, self.key_points)
-            step = self.rule.step(UpdateInput(self.k, self.U.copy(), delta, J, self.enabled, est.std))
+            J = (self.model.jacobian(self.U, self.key_points)
+                 if getattr(self.rule, 'needs_jacobian', True) else None)
+            history = tuple(PastIteration(r.pwm, r.estimate.mean, r.estimate.std, r.info)
+                            for r in self.history)
+            step = self.rule.step(UpdateInput(self.k, self.U.copy(), delta, J, self.enabled, est.std,
+                                              model=self.model, key_points=self.key_points,
+                                              target=self.target, history=history))
             next_pwm, step_size, info = step.U_next, step.step_size, dict(step.info)
         true_field = true_error = None
         if self.truth is not None:
@@ -113,10 +118,20 @@ class ShapingLoop:
             self.k += 1
         return rec
 
-    def run(self, iterations: int, on_iteration: Callable[[IterationRecord], None] | None = None):
-        """``iterations`` updates, then one final measurement at the last commands."""
+    def run(self, iterations: int, on_iteration: Callable[[IterationRecord], None] | None = None,
+            stop_early: bool = False):
+        """``iterations`` updates, then one final measurement at the last commands.
+
+        stop_early: end after the update whose rule says more iterations will not help
+        (``info['stop']``, see ``core.solvers.StoppingRule``); the measurement at its commands
+        is still taken, so the last record is always a measurement of the final commands."""
         for i in range(iterations + 1):
             rec = self.iterate(update=i < iterations)
             if on_iteration:
                 on_iteration(rec)
+            if stop_early and rec.info.get('stop') and i < iterations:
+                rec = self.iterate(update=False)
+                if on_iteration:
+                    on_iteration(rec)
+                break
         return self.history

@@ -7,7 +7,7 @@ lambda_k = gain / (k + 1). Every rule keeps disabled fans at 0 and every command
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Mapping, Protocol
 
 import numpy as np
 
@@ -35,20 +35,41 @@ class CommandBounds:
 
 
 @dataclass(frozen=True)
+class PastIteration:
+    """An earlier iteration as a rule may use it: U (n_fans,) commands [fraction]; mean (N,)
+    estimated force at the key points [N]; std (N,) its GP standard deviation [N] (or None);
+    info: what the rule answered at that iteration (``UpdateStep.info``; empty if none)."""
+
+    U: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray | None = None
+    info: Mapping = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class UpdateInput:
     """What a rule sees at iteration k.
 
     U: (n_fans,) commands the sweep was measured at; delta: (N,) F_des - F_k at the key
-    points [N]; jacobian: (N, n_fans) model dPhi/dU at U [N per unit PWM]; enabled: (n_fans,)
-    mask; std: (N,) GP standard deviation [N] (rules may weight by it).
+    points [N]; jacobian: (N, n_fans) model dPhi/dU at U [N per unit PWM], or None for rules
+    that do not need it (``needs_jacobian = False``); enabled: (n_fans,) mask; std: (N,) GP
+    standard deviation [N] (rules may weight by it).
+
+    Optional, for rules that learn from the run (``PaperUpdate`` ignores them): model: the
+    prior ``Term``; key_points: (N, 2) [m]; target: (N,) F_des [N]; history: the earlier
+    iterations of this run, oldest first (``PastIteration``).
     """
 
     k: int
     U: np.ndarray
     delta: np.ndarray
-    jacobian: np.ndarray
+    jacobian: np.ndarray | None
     enabled: np.ndarray
     std: np.ndarray | None = None
+    model: Any = None
+    key_points: np.ndarray | None = None
+    target: np.ndarray | None = None
+    history: tuple = ()
 
 
 @dataclass(frozen=True)
