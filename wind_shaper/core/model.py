@@ -69,6 +69,27 @@ class Term:
         U, Z = _batch(U, Z, self.n_fans)
         return self._value_and_grad(U, Z, jacobian)
 
+    def sparse_jacobian(self, U, Z, tol: float = 1e-6):
+        """dPhi/dU at one command vector U (n_fans,) and points Z (M, 2) [m] as a
+        ``scipy.sparse`` CSC matrix (M, n_fans) [N per unit PWM], for large fan walls.
+
+        Entries below ``tol`` x the largest are dropped. This default evaluates dense blocks of
+        points (memory bounded by the block); ``FanJets`` and ``CentralRing`` evaluate only the
+        (point, fan) pairs within their footprint's reach."""
+        import scipy.sparse as sp
+        Z = np.asarray(Z, dtype=float).reshape(-1, 2)
+        step = max(1, _PAIRS_PER_BLOCK // self.n_fans)
+        rows, cols, vals = [], [], []
+        for lo in range(0, len(Z), step):
+            J = self.jacobian(U, Z[lo:lo + step])
+            cut = tol * float(np.max(np.abs(J))) if J.size else 0.0
+            r, c = np.nonzero(np.abs(J) > cut)
+            rows.append(r + lo)
+            cols.append(c)
+            vals.append(J[r, c])
+        return sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(len(Z), self.n_fans))
+
     def _value_and_grad(self, U, Z, jacobian):  # pragma: no cover - abstract
         raise NotImplementedError
 
@@ -223,6 +244,9 @@ class Sum(_Composite):
         v2, j2 = self.k2._value_and_grad(U, Z, jacobian)
         return v1 + v2, (j1 + j2 if jacobian else None)
 
+    def sparse_jacobian(self, U, Z, tol: float = 1e-6):
+        return (self.k1.sparse_jacobian(U, Z, tol) + self.k2.sparse_jacobian(U, Z, tol)).tocsc()
+
     def __repr__(self):
         return f'{self.k1!r} + {self.k2!r}'
 
@@ -254,6 +278,32 @@ def _sq_dist(Z, centres):
     """Squared distances (M, n) [m^2] from points Z (M, 2) to centres (n, 2)."""
     d = Z[:, None, :] - centres[None, :, :]
     return np.einsum('mnk,mnk->mn', d, d)
+
+
+#: (point, fan) pairs evaluated at once by the dense fallback of ``Term.sparse_jacobian``.
+_PAIRS_PER_BLOCK = 1 << 21
+
+
+def _near_pairs(Z, centres, reach):
+    """(point index, centre index, squared distance [m^2]) of every pair closer than reach [m],
+    grouped by centre and sorted by point within a centre (so CSC needs no sorting)."""
+    from scipy.spatial import cKDTree
+    Z = np.asarray(Z, dtype=float).reshape(-1, 2)
+    near = cKDTree(Z).query_ball_point(np.asarray(centres, dtype=float), reach, return_sorted=True)
+    counts = np.array([len(v) for v in near], dtype=np.int64)
+    rows = (np.concatenate([np.asarray(v, dtype=np.int64) for v in near]) if len(near)
+            else np.zeros(0, dtype=np.int64))
+    cols = np.repeat(np.arange(len(near)), counts)
+    d = Z[rows] - np.asarray(centres, dtype=float)[cols]
+    return rows, cols, np.einsum('ij,ij->i', d, d)
+
+
+def _sparse_from_pairs(rows, cols, vals, shape):
+    """CSC from pairs grouped by column with sorted rows (as ``_near_pairs`` returns them)."""
+    import scipy.sparse as sp
+    indptr = np.zeros(shape[1] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cols, minlength=shape[1]), out=indptr[1:])
+    return sp.csc_matrix((vals, rows, indptr), shape=shape)
 
 
 #: Bounds of the PWM-to-force polynomial c0 + c1 U + c2 U^2 [N]: c1, c2 >= 0 keeps P
@@ -305,6 +355,15 @@ class FanJets(Term):
         P, dP = _poly(self._coeffs, U)
         return np.sum(G * P, axis=1), (G * dP if jacobian else None)
 
+    def sparse_jacobian(self, U, Z, tol: float = 1e-6):
+        """Only pairs within sigma sqrt(ln(1/tol)) of a member fan: exp(-d^2/sigma^2) >= tol."""
+        U = np.asarray(U, dtype=float)
+        Z = np.asarray(Z, dtype=float).reshape(-1, 2)
+        r, c, d2 = _near_pairs(Z, self.fans.positions, self.sigma * np.sqrt(np.log(1.0 / tol)))
+        _, dP = _poly(self._coeffs, U)
+        vals = np.exp(-d2 / self.sigma ** 2) * (self._members * dP)[c]
+        return _sparse_from_pairs(r, c, vals, (len(Z), self.n_fans))
+
     def to_dict(self):
         out = super().to_dict()
         out['groups'] = list(self.groups)
@@ -350,6 +409,21 @@ class CentralRing(Term):
         G = self.footprint(Z)
         P, dP = _poly(self.thrust, U)
         return np.sum(G * P, axis=1), (G * dP if jacobian else None)
+
+    def sparse_jacobian(self, U, Z, tol: float = 1e-6):
+        """Only pairs where the ring's footprint can exceed tol x its largest value."""
+        U = np.asarray(U, dtype=float)
+        Z = np.asarray(Z, dtype=float).reshape(-1, 2)
+        # (offset + d^2/rs^2) exp(-d^2/s^2) <= (offset + x s^2/rs^2) e^-x with x = d^2/s^2:
+        # far enough out that bound is below tol x the peak for x = ln(1/tol) + 8
+        reach = self.sigma * np.sqrt(np.log(1.0 / tol) + 8.0)
+        centres = self.fans.positions
+        r, c, d2 = _near_pairs(Z, centres, reach)
+        _, dP = _poly(self.thrust, U)
+        keep = self._members[c]
+        r, c, d2 = r[keep], c[keep], d2[keep]  # a subset of a grouped, sorted list stays so
+        G = (self.offset + d2 / self.ring_scale ** 2) * np.exp(-d2 / self.sigma ** 2)
+        return _sparse_from_pairs(r, c, G * dP[c], (len(Z), self.n_fans))
 
     def __repr__(self):
         return (f'CentralRing(P_c={np.round(self.thrust, 3).tolist()}, offset={self.offset:.3g}, '
