@@ -87,9 +87,20 @@ class ShapingConfig:
         cfg = dict(self.update or {})
         cfg.update(overrides)
         method = cfg.pop('method', 'paper')
+        # One section holds both methods' settings; each method drops the other's keys and
+        # still refuses keys that neither knows.
+        from .solvers import AdaptiveUpdate
+        paper_keys = {f.name for f in fields(PaperUpdate)}
+        adaptive_keys = {f.name for f in fields(AdaptiveUpdate)}
         if method == 'paper':
-            return _take(PaperUpdate, {**cfg, 'bounds': self.bounds}, 'shaping.update')
-        raise ConfigError(f'shaping.update.method {method!r} is unknown; use paper')
+            own = {k: v for k, v in cfg.items() if k in paper_keys or k not in adaptive_keys}
+            return _take(PaperUpdate, {**own, 'bounds': self.bounds}, 'shaping.update')
+        if method == 'adaptive':
+            own = {k: v for k, v in cfg.items() if k in adaptive_keys or k not in paper_keys}
+            if 'gain' in overrides:  # an explicit step gain (CLI --gain): the fraction of the step
+                own['step_fraction'] = overrides['gain']
+            return _take(AdaptiveUpdate, {**own, 'bounds': self.bounds}, 'shaping.update')
+        raise ConfigError(f'shaping.update.method {method!r} is unknown; use adaptive or paper')
 
     def make_estimator(self) -> FieldEstimator:
         return _take(FieldEstimator, self.estimator, 'shaping.estimator')
