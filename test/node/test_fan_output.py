@@ -257,7 +257,9 @@ def test_exception_in_a_callback_makes_safe(harness, autopilot):
     node._map.command = broken          # the send timer's next conversion raises
     harness.command((0.3, 0.3, 0.3))
     assert wait_for(outputs_are(autopilot, SAFE), 2.0), autopilot.outputs()
-    assert harness.fresh_diag()['exceptions'] == '1'
+    # the command callback and the send timer both convert commands: either may hit the broken
+    # conversion first, and both count
+    assert int(harness.fresh_diag()['exceptions']) >= 1
 
 
 def test_lifecycle_without_autostart(harness, autopilot):
