@@ -44,8 +44,10 @@ from .errors import ConfigError
 from .secant import SecantCorrection
 from .update import CommandBounds, UpdateInput, UpdateStep
 
-#: Above this many (key point, fan) pairs the prior's footprints are kept as sparse matrices.
+#: Above this many (key point, fan) pairs, or this many fans, the prior's footprints are kept
+#: as sparse matrices and the rule takes its large-wall path (per-fan gains, a QP in thrust space).
 SPARSE_PAIRS = 2_000_000
+SPARSE_FANS = 64
 #: (fan, fan) pairs per block when per-fan thrust curves are read from the term.
 _PAIRS_PER_BLOCK = 1 << 21
 
@@ -87,7 +89,7 @@ class FanBasis:
         term is not separable over fans."""
         kp = np.asarray(key_points, dtype=float)
         n, N = term.n_fans, len(kp)
-        sparse = n * N > SPARSE_PAIRS if sparse is None else sparse
+        sparse = (n * N > SPARSE_PAIRS or n > SPARSE_FANS) if sparse is None else sparse
         U_ref = np.full(n, u_ref)
         shifts = {'0': (0.0, 0.0), 'x+': (h, 0.0), 'x-': (-h, 0.0), 'y+': (0.0, h), 'y-': (0.0, -h)}
         if sparse:
@@ -614,6 +616,10 @@ class AdaptiveUpdate:
 
         # -- trust radius from the last step's prediction ---------------------------------------
         radius, rho, accepted = self.radius, None, True
+        if not history and inp.k > 0:
+            # Called without the run's history (e.g. by a node that keeps none): the rule cannot
+            # see whether its steps work, so the radius shrinks like the paper's schedule.
+            radius = max(self.radius_min, self.radius / (inp.k + 1))
         if history:
             last = dict(history[-1].info)
             radius = float(last.get('radius', self.radius))
