@@ -29,7 +29,8 @@ def main(argv=None):
         runs, times = [], []
         for seed in range(args.seeds):
             t0 = time.perf_counter()
-            records, _ = shape_on_sim(setup, target, iterations=args.iterations, seed=seed)
+            records, _ = shape_on_sim(setup, target, iterations=args.iterations, seed=seed,
+                                      rule_overrides={'method': 'paper'})
             times.append((time.perf_counter() - t0) / len(records))
             runs.append([np.sqrt(r.true_error) for r in records])
         runs = np.array(runs)

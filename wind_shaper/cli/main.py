@@ -31,18 +31,22 @@ def _cmd_shape(args) -> int:
     setup = Setup.load(args.config, args.disable)
     model = setup.load_model(args.model) if args.model else None
     names = setup.geometry.fans.names
-    rule = {'gain': args.gain} if args.gain is not None else None
+    rule = {}
+    if args.gain is not None:
+        rule['gain'] = args.gain
+    if args.method is not None:
+        rule['method'] = args.method
     print(f'target {args.target}; {setup.geometry.fans.n_fans} fans '
           f'({", ".join(n for n, e in zip(names, setup.geometry.fans.enabled) if not e) or "none"} '
           f'disabled); {len(setup.geometry.key_points)} key points')
     t0 = time.perf_counter()
     records, target = shape_on_sim(
         setup, args.target, iterations=args.iterations, seed=args.seed, model=model,
-        rule_overrides=rule, on_iteration=lambda r: print(format_iteration(r, names), flush=True))
+        rule_overrides=rule or None, on_iteration=lambda r: print(format_iteration(r, names), flush=True))
     out = args.out or Path('reports') / time.strftime('shape-%Y%m%d-%H%M%S')
     meta = {'target': target.describe(), 'target_spec': args.target, 'seed': args.seed,
             'disabled': args.disable, 'model': repr(model or setup.load_model()),
-            'config_dir': str(setup.config_dir), 'update': dict(setup.shaping.update or {}),
+            'config_dir': str(setup.config_dir), 'update': {**dict(setup.shaping.update or {}), **rule},
             'wall_time_s': round(time.perf_counter() - t0, 3)}
     write_report(out, records, setup.geometry, meta, u_max=setup.shaping.u_max)
     first, last = records[0], records[-1]
@@ -77,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='uniform[:F] | gaussian[@FAN] | parabolic | expr:<f(x,y)> | csv:<file>')
     p.add_argument('--iterations', type=int, default=None, help='updates (default: shaping.yaml)')
     p.add_argument('--gain', type=float, default=None, help='step gain (paper: 0.8)')
+    p.add_argument('--method', choices=('adaptive', 'paper'), default=None,
+                   help='update rule (default: shaping.yaml); paper = Algorithm 1 exactly')
     p.add_argument('--model', type=Path, default=None, help='model file (default: config/model.yaml)')
     p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/shape-<time>)')
     p.set_defaults(func=_cmd_shape)
@@ -101,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: Modules with a ``register(subparsers)`` adding graph commands: up (graph.py), iterate /
 #: status / cancel (service.py), record / replay (bag.py).
-_GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_shaper.cli.bag')
+_GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_shaper.cli.bag',
+                   'wind_shaper.cli.model')
 
 
 def main(argv=None) -> int:
