@@ -7,7 +7,6 @@ used) answers begin_sweep / estimate with the core FieldEstimator on a simulator
 import math
 import threading
 import time
-from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -27,7 +26,6 @@ from wind_shaper.cli.main import main as cli  # noqa: E402
 from wind_shaper.core.config import ShapingConfig  # noqa: E402
 from wind_shaper.core.modelfile import save_model  # noqa: E402
 from wind_shaper.core.runstore import RunStore  # noqa: E402
-from wind_shaper.core.update import UpdateInput  # noqa: E402
 from wind_shaper.nodes.coordinator import CoordinatorNode  # noqa: E402
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
@@ -405,8 +403,6 @@ def test_a_restart_resumes_at_the_next_iteration_with_the_same_commands(graph):
 
 
 def test_update_rules_see_the_runs_history_across_restarts(graph, monkeypatch):
-    if 'history' not in {f.name for f in fields(UpdateInput)}:
-        pytest.skip('this core.update gives rules no run history')
     seen = []
     make_rule = ShapingConfig.make_rule
 
