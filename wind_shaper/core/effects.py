@@ -33,7 +33,7 @@ space by central differences (step 1e-5 m).
 """
 from __future__ import annotations
 
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping
 
 import copy
 
