@@ -1,0 +1,355 @@
+"""Diagnosis: which physical effect is the model missing?
+
+``Diagnosis(library).fit(model, sweeps, geometry)`` (an estimator: ``fit`` returns self, fitted
+state ends in ``_``):
+
+1. splits the sweeps into training and held-out sweeps (by sweep);
+2. refits the model's free parameters on the training sweeps (``fit_mask``: every free
+   parameter except the thrust polynomials' constant terms, which stay as commissioned: a fan
+   at zero command gives no thrust, and a uniform offset is the background candidate's job);
+3. forward selection, one effect per step: every candidate of the library is *screened*
+   (fitted alone around the frozen current model, a few parameters, fast), the best
+   ``refine`` by BIC on the training sweeps (and candidates marked ``refine_always``, whose
+   effect the refitted polynomials partly absorb, such as a dead band) are *refined* (refitted
+   together with the model), and the refined candidate with the lowest BIC that passes the
+   guard is added; stop when none passes. Ranking by BIC uses every training sweep; the few
+   held-out sweeps judge the result (the guard) rather than rank it.
+
+The guard (what makes a finding): on the held-out sweeps the model error (noise removed, see
+``metrics``) falls by at least ``min_gain`` (20 %); on the training sweeps the BIC falls by at
+least ``min_dbic`` (10, "very strong" evidence); a parameter lies ``min_z`` (3) standard errors
+from its no-effect value, the standard error being the larger of the Gauss-Newton one and the
+delete-one-sweep jackknife (a term that only patches part of an unexplained residual fits
+differently without each sweep); and the error before was *material*: at least ``material`` (half)
+of the measurement noise (model error variance a quarter of the noise's). On data the model
+already explains, the held-out error is already small against the noise and nothing is reported
+("explained"). When the error is material and no candidate passes, the verdict is "unexplained"
+and the report shows the residual's structure instead of forcing a term.
+
+Reported parameters come from a refit on every training cell; their uncertainty is the larger of the
+Gauss-Newton standard error and a delete-one-sweep jackknife (sweeps are the independent units).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.effects import param_slices, term_label
+from ..core.geometry import TunnelGeometry
+from ..core.model import Term
+from .data import FitData, SweepSet
+from .errors import FitError
+from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
+from .library import Candidate, Library, apply_candidate, default_library
+from .metrics import HeldOut
+
+__all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std']
+
+_HELD = re.compile(r'(^|__)thrust(_higher|_lower)?\[0\]$')
+
+
+def fit_mask(model: Term) -> np.ndarray:
+    """Which free parameters a refit moves: all but the thrust polynomials' constant terms."""
+    return np.array([not _HELD.search(n) for n in model.theta_names], dtype=bool)
+
+
+def candidate_std(fit: FitResult, label: str) -> dict:
+    """{parameter: standard errors} of the term ``label`` in a fit (Gauss-Newton)."""
+    std_all = fit.std_of()
+    for node, sl in param_slices(fit.model):
+        if term_label(node) == label:
+            names = [h for h in node._free()]
+            out, i = {}, sl.start
+            for h in names:
+                out[h.name] = std_all[i:i + h.size].tolist()
+                i += h.size
+            return out
+    return {}
+
+
+@dataclass
+class Trial:
+    """One candidate tried at one step: its fitted model and parameters, the training BIC
+    change, the held-out model error [N] and its relative drop, whether it passed the guard
+    (and why not), and the finding in plain words."""
+
+    candidate: Candidate
+    stage: str
+    model: Term
+    params: dict
+    std: dict
+    sse: float
+    n: int
+    k: int
+    bic: float
+    dbic: float
+    heldout_rmse: float
+    heldout_raw_rmse: float
+    gain: float
+    passed: bool = False
+    reasons: list = field(default_factory=list)
+    finding: str = ''
+
+    def to_json(self) -> dict:
+        def clean(v):
+            return np.round(np.asarray(v, float), 6).tolist()
+        return {'candidate': self.candidate.name, 'family': self.candidate.family,
+                'title': self.candidate.title, 'hypothesis': self.candidate.hypothesis,
+                'stage': self.stage, 'params': {k: clean(v) for k, v in self.params.items()},
+                'std': {k: clean(v) for k, v in self.std.items()},
+                'train_rmse_N': float(np.sqrt(self.sse / self.n)), 'k': self.k,
+                'bic': round(self.bic, 3), 'dbic': round(self.dbic, 3),
+                'heldout_model_rmse_N': round(self.heldout_rmse, 6),
+                'heldout_raw_rmse_N': round(self.heldout_raw_rmse, 6),
+                'heldout_gain': round(self.gain, 4), 'passed': self.passed,
+                'reasons': list(self.reasons), 'finding': self.finding}
+
+
+class Diagnosis:
+    """Forward selection of candidate effects with a guard (see the module docstring).
+
+    library: ``Library`` (default: every family); cell [m]: grid of the training cell means;
+    test_fraction / test: the held-out split (see ``SweepSet.split``); min_gain, min_dbic,
+    min_z, material: the guard; max_effects: most effects added; refine: candidates refined
+    per step; max_nfev: cap on a refit's iterations; noise_sd [N]: the measurement noise per
+    sample, when the held-out sweeps are too short to estimate it (they must revisit places).
+    """
+
+    def __init__(self, library: Library | None = None, *, cell: float = 0.04,
+                 test_fraction: float = 1 / 3, test=None, min_gain: float = 0.2,
+                 min_dbic: float = 10.0, min_z: float = 3.0, material: float = 0.5,
+                 max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
+                 noise_sd: float | None = None):
+        self.library = library
+        self.cell, self.test_fraction, self.test = cell, test_fraction, test
+        self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
+        self.max_effects, self.refine, self.max_nfev = max_effects, refine, max_nfev
+        self.noise_sd = noise_sd
+
+    # -- the steps ----------------------------------------------------------------------------
+    def _evaluate(self, model: Term) -> tuple[float, float]:
+        ev = self.heldout_.evaluate(model)
+        return ev['model_rmse'], ev['raw'].rmse
+
+    def _trial(self, cand, stage, fit: FitResult, current: FitResult, current_rmse, std=None):
+        node = None
+        for n in _nodes(fit.model):
+            if term_label(n) == cand.label:
+                node = n
+                break
+        if node is None:
+            raise FitError(f'candidate {cand.name} did not place its term {cand.label} in the model')
+        held, raw = self._evaluate(fit.model)
+        k = current.k + fit.k if stage == 'screened' else fit.k
+        if fit.n == len(self.train_):
+            sse = fit.sse
+        else:  # fitted on the screening cells: score on every training cell
+            r = fit.model(self.train_.U, self.train_.Z) - self.train_.y
+            sse = float(r @ r)
+        n = len(self.train_)
+        b = bic(sse, n, k)
+        gain = 1.0 - held / current_rmse if current_rmse > 0 else 0.0
+        return Trial(cand, stage, fit.model, cand.params(node),
+                     std if std is not None else candidate_std(fit, cand.label),
+                     sse, n, k, b, b - current.bic, held, raw, gain), node
+
+    def _screen(self, cand: Candidate, current: FitResult, current_rmse: float, frozen: Frozen):
+        best = None
+        for start in cand.starts:
+            model = apply_candidate(frozen, cand, **start)
+            fit = fit_model(model, self.screen_, max_nfev=15, ftol=1e-4, xtol=1e-5)
+            if best is None or fit.sse < best.sse:
+                best = fit
+        return self._trial(cand, 'screened', best, current, current_rmse)[0]
+
+    def _refine(self, trial: Trial, current: FitResult, current_rmse: float, data: FitData | None = None,
+                max_nfev: int | None = None):
+        """Refit the candidate together with the model's free parameters (on the screening
+        cells unless ``data`` is given; the accepted one is polished on every training cell)."""
+        cand = trial.candidate
+        model = apply_candidate(current.model, cand, **trial.params)
+        fit = fit_model(model, data if data is not None else self.screen_, free=fit_mask(model),
+                        max_nfev=max_nfev or self.max_nfev)
+        out, node = self._trial(cand, 'refined', fit, current, current_rmse)
+        return out, fit
+
+    def _guard(self, t: Trial, current_rmse: float) -> None:
+        reasons = []
+        if current_rmse < self.material * self.noise_sd_:
+            reasons.append(f'nothing material to explain (held-out model error {current_rmse:.3f} N '
+                           f'< {self.material:.2f} x noise {self.noise_sd_:.3f} N)')
+        if t.gain < self.min_gain:
+            reasons.append(f'held-out error falls only {100 * t.gain:.0f} % (< {100 * self.min_gain:.0f} %)')
+        if t.dbic > -self.min_dbic:
+            reasons.append(f'BIC falls only {-t.dbic:.1f} (< {self.min_dbic:g})')
+        z = _z_score(t.params, t.std, t.candidate.null)
+        if z is not None and z < self.min_z:
+            reasons.append(f'parameter only {z:.1f} standard errors from no effect (< {self.min_z:g})')
+        t.reasons = reasons
+        t.passed = not reasons
+
+    # -- fit ----------------------------------------------------------------------------------
+    def fit(self, model: Term, data: SweepSet, geometry: TunnelGeometry) -> 'Diagnosis':
+        data.check_fans(geometry.fans.names)
+        if model.n_fans != geometry.fans.n_fans:
+            raise FitError(f'the model is for {model.n_fans} fans, the tunnel has {geometry.fans.n_fans}')
+        library = self.library or default_library()
+        self.geometry_ = geometry
+        self.train_sweeps_, self.test_sweeps_ = data.split(self.test_fraction, self.test)
+        self.train_ = self.train_sweeps_.fit_data(self.cell)
+        self.screen_ = self.train_.subset(slice(None, None, 2))  # screening needs only a ranking
+        self.heldout_ = HeldOut(self.test_sweeps_)
+        base = fit_model(model, self.train_, free=fit_mask(model), max_nfev=self.max_nfev)
+        self.baseline_ = base
+        self.noise_sd_ = (float(self.noise_sd) if self.noise_sd is not None
+                          else self.heldout_.estimate_noise(base.model))
+        if not np.isfinite(self.noise_sd_):
+            raise FitError('the held-out sweeps revisit too few places to estimate the measurement '
+                           'noise: record sweeps of 1000 samples (the default tour crosses the disc more '
+                           'than once) or give the noise per sample (noise_sd, --noise-sd)')
+        self.heldout_.noise_sd = self.noise_sd_
+        self.baseline_rmse_, self.baseline_raw_ = self._evaluate(base.model)
+        current, current_rmse = base, self.baseline_rmse_
+        self.steps_, self.rankings_ = [], []
+        accepted: list[str] = []
+        for _ in range(self.max_effects):
+            if current_rmse < self.material * self.noise_sd_:
+                break
+            cands = [c for c in library.candidates(current.model, geometry) if c.name not in accepted]
+            if not cands:
+                break
+            frozen = Frozen(current.model)
+            screened = sorted((self._screen(c, current, current_rmse, frozen) for c in cands),
+                              key=lambda t: t.bic)
+            picks = screened[:self.refine] + [t for t in screened[self.refine:] if t.candidate.refine_always]
+            refined = []
+            for t in picks:
+                trial, fit = self._refine(t, current, current_rmse)
+                self._guard(trial, current_rmse)
+                if trial.passed:  # judge the parameter by its sweep-to-sweep spread as well
+                    trial.std = self._uncertainty(trial, current, fit)
+                    self._guard(trial, current_rmse)
+                refined.append((trial, fit))
+            rest = [t for t in screened if all(t is not p for p in picks)]
+            for t in rest:
+                self._guard(t, current_rmse)
+                if t.passed:  # screened only: may not be reported without a refit
+                    t.passed = False
+                    t.reasons = ['not among the best refined candidates']
+            ranking = sorted([t for t, _ in refined], key=lambda t: t.bic) + rest
+            self.rankings_.append(ranking)
+            passing = [(t, f) for t, f in refined if t.passed]
+            if not passing:
+                break
+            best, fit = min(passing, key=lambda tf: tf[0].bic)
+            polished, fit = self._refine(best, current, current_rmse, data=self.train_, max_nfev=15)
+            polished.std = self._uncertainty(polished, current, fit)
+            polished.passed, polished.reasons = True, []
+            ranking[ranking.index(best)] = polished
+            best = polished
+            best.finding = best.candidate.describe(_node(fit.model, best.candidate.label), best.std)
+            self.steps_.append(best)
+            accepted.append(best.candidate.name)
+            current, current_rmse = fit, best.heldout_rmse
+        self.final_ = current
+        self.final_rmse_ = current_rmse
+        self.final_raw_ = self._evaluate(current.model)[1]
+        if self.steps_:
+            self.verdict_ = 'found'
+        elif self.baseline_rmse_ < self.material * self.noise_sd_:
+            self.verdict_ = 'explained'
+        else:
+            self.verdict_ = 'unexplained'
+        return self
+
+    def _uncertainty(self, t: Trial, previous: FitResult, fit: FitResult) -> dict:
+        """max(Gauss-Newton, delete-one-sweep jackknife) per parameter of the candidate; the
+        jackknife refits the candidate's parameters with the rest of the fitted model held."""
+        sl = next((sl for node, sl in param_slices(fit.model) if term_label(node) == t.candidate.label), None)
+        if sl is None or sl.stop == sl.start:
+            return t.std
+        try:
+            jk = jackknife_std(fit.model, self.train_, np.arange(sl.start, sl.stop), max_nfev=10)
+        except FitError:
+            return t.std
+        node = _node(fit.model, t.candidate.label)
+        out, i = {}, 0
+        for h in node._free():
+            gn = np.asarray(t.std.get(h.name, [np.nan] * h.size), float)
+            out[h.name] = np.fmax(gn, jk[i:i + h.size]).tolist()
+            i += h.size
+        return out
+
+    # -- results ------------------------------------------------------------------------------
+    @property
+    def findings_(self) -> list[str]:
+        return [t.finding for t in self.steps_]
+
+    @property
+    def ranking_(self) -> list[Trial]:
+        """The first step's ranked table (every candidate against the refitted model)."""
+        return self.rankings_[0] if self.rankings_ else []
+
+    def summary(self) -> str:
+        """The verdict in plain words."""
+        if self.verdict_ == 'explained':
+            return (f'Nothing to report: the model already explains these sweeps (held-out model error '
+                    f'{self.baseline_rmse_:.3f} N against measurement noise {self.noise_sd_:.3f} N).')
+        if self.verdict_ == 'unexplained':
+            best = self.ranking_[0] if self.ranking_ else None
+            tail = (f' The best candidate, {best.candidate.title}, lowers it by only '
+                    f'{100 * max(best.gain, 0):.0f} %.' if best else '')
+            return (f'No candidate explains the residual: the held-out model error stays at '
+                    f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{tail} '
+                    f'See the residual\'s structure below.')
+        lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(self.steps_)]
+        return (f'Found {len(self.steps_)} effect(s); held-out model error '
+                f'{self.baseline_rmse_:.3f} N -> {self.final_rmse_:.3f} N '
+                f'({100 * (1 - self.final_rmse_ / self.baseline_rmse_):.0f} % lower):\n' + '\n'.join(lines))
+
+    def to_json(self) -> dict:
+        return {
+            'verdict': self.verdict_, 'summary': self.summary(),
+            'noise_sd_N': self.noise_sd_,
+            'train_sweeps': list(self.train_sweeps_.labels), 'test_sweeps': list(self.test_sweeps_.labels),
+            'baseline': {'model': repr(self.baseline_.model), 'train_rmse_N': self.baseline_.rmse,
+                         'heldout_model_rmse_N': self.baseline_rmse_, 'heldout_raw_rmse_N': self.baseline_raw_,
+                         'bic': self.baseline_.bic},
+            'final': {'model': repr(self.final_.model), 'train_rmse_N': self.final_.rmse,
+                      'heldout_model_rmse_N': self.final_rmse_, 'heldout_raw_rmse_N': self.final_raw_},
+            'findings': [t.to_json() for t in self.steps_],
+            'rankings': [[t.to_json() for t in r] for r in self.rankings_],
+            'guard': {'min_gain': self.min_gain, 'min_dbic': self.min_dbic, 'min_z': self.min_z,
+                      'material': self.material},
+        }
+
+
+def _nodes(model):
+    from ..core.effects import walk
+    return walk(model)
+
+
+def _node(model, label):
+    for n in _nodes(model):
+        if term_label(n) == label:
+            return n
+    return None
+
+
+def _z_score(params: dict, std: dict, null: dict):
+    """Largest |value - null| / std over the parameters with a null value (None if none)."""
+    zs = []
+    for name, ref in null.items():
+        if name not in params:
+            continue
+        v = np.atleast_1d(np.asarray(params[name], float))
+        s = np.atleast_1d(np.asarray(std.get(name, [np.nan] * len(v)), float))
+        r = np.broadcast_to(np.asarray(ref, float), v.shape)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            z = np.abs(v - r) / s
+        z = z[np.isfinite(z)]
+        if len(z):
+            zs.append(float(z.max()))
+    return max(zs) if zs else None
