@@ -1,0 +1,289 @@
+"""`wind-shaper model fit | compare | diagnose | add`: the model workbench on the command line.
+
+A thin argument layer over ``wind_shaper.workbench.commands``. Data come from the simulated
+tunnel (``--sim``, with ``--hidden`` effects switched on), or from recorded sweeps (``--data``: a
+rosbag2 bag, a coordinator run folder or a ``wind-shaper shape`` report folder). Every command
+writes a report folder (report.html, report.md, PNGs, summary.json).
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import json
+import sys
+import time
+from pathlib import Path
+
+from ..core.errors import WindShaperError
+
+REFERENCE_FILE = 'reference.yaml'
+
+
+def _load_plugins(specs) -> list:
+    """Import each ``--plugin`` (a Python file or a module name); return the candidate families
+    they offer (a module-level ``FAMILIES`` list)."""
+    families = []
+    for spec in specs or ():
+        path = Path(spec)
+        if path.suffix == '.py':
+            if not path.is_file():
+                raise WindShaperError(f'plugin {path} does not exist')
+            mod_spec = importlib.util.spec_from_file_location(f'wind_shaper_plugin_{path.stem}', path)
+            module = importlib.util.module_from_spec(mod_spec)
+            sys.modules[mod_spec.name] = module
+            mod_spec.loader.exec_module(module)
+        else:
+            try:
+                module = importlib.import_module(spec)
+            except ImportError as exc:
+                raise WindShaperError(f'cannot import plugin {spec!r}: {exc}') from None
+        families += list(getattr(module, 'FAMILIES', []))
+    return families
+
+
+def _setup(args):
+    from ..app import Setup
+    return Setup.load(args.config, args.disable)
+
+
+def _hidden(args):
+    from ..sim import make_effect
+    from ..workbench.commands import parse_spec
+    out = []
+    for text in args.hidden or ():
+        name, params = parse_spec(text)
+        if 'shift' in params and isinstance(params['shift'], list):
+            params['shift'] = tuple(params['shift'])
+        out.append(make_effect(name, **params))
+    return out
+
+
+def _sim(setup, args, seed=None):
+    return setup.make_sim(seed=args.seed if seed is None else seed, effects=_hidden(args))
+
+
+def _data(setup, args):
+    from ..workbench.commands import simulated_sweeps
+    from ..workbench.data import load_sweeps
+    if args.sim == bool(args.data):
+        raise WindShaperError('give the sweeps: --sim (the simulated tunnel) or --data PATH (a bag, a '
+                              'run folder or a shape report), not both')
+    if args.sim:
+        return simulated_sweeps(_sim(setup, args), args.sweeps, seed=args.seed, n_samples=args.samples)
+    if args.hidden:
+        raise WindShaperError('--hidden switches on simulator effects: use it with --sim')
+    return load_sweeps(args.data, setup.geometry.fans.names)
+
+
+def _model_path(setup, path):
+    if path:
+        return Path(path)
+    ref = setup.config_dir / REFERENCE_FILE
+    return ref if ref.is_file() else setup.model_path
+
+
+def _out(args, command):
+    return args.out or Path('reports') / time.strftime(f'model-{command}-%Y%m%d-%H%M%S')
+
+
+def _library(args):
+    from ..workbench.library import FAMILIES, Library
+    extra = _load_plugins(args.plugin)
+    families = list(FAMILIES) if not getattr(args, 'families', None) else args.families.split(',')
+    return Library(families + extra)
+
+
+# -- commands ---------------------------------------------------------------------------------------
+
+def _cmd_fit(args) -> int:
+    from ..workbench.commands import fit_command
+    _load_plugins(args.plugin)
+    setup = _setup(args)
+    out = _out(args, 'fit')
+    if args.commission:
+        return _commission(setup, args, out)
+    path = _model_path(setup, args.model)
+    model = setup.load_model(path)
+    data = _data(setup, args)
+    res = fit_command(model, data, setup.geometry, out, save=args.save, source_model=str(path))
+    held = res.heldout
+    print(f'fitted {path} on {data.source}: training RMSE {res.fit.rmse:.3f} N'
+          + (f', held-out model error {held["model_rmse"]:.3f} N (noise {held["noise_sd"]:.3f} N)' if held else ''))
+    print(f'report: {out}/ (report.html, report.md, summary.json)')
+    return 0
+
+
+def _commission(setup, args, out) -> int:
+    from ..core.modelfile import save_model
+    from ..workbench.reference import commission_on
+    from ..workbench.report import Report
+    if not args.sim:
+        print('--commission runs the calibration batch on the simulated tunnel (--sim); on the rig, '
+              'record the batch and fit it with the workbench API (docs/workbench.md)', file=sys.stderr)
+        return 2
+    ref = commission_on(_sim(setup, args))
+    save = args.save or (out / REFERENCE_FILE)
+    save_model(save, ref.model, fitted_from=f'commissioning batch on the simulated tunnel (seed {args.seed})',
+               rmse_N=round(ref.fit.rmse, 5), n_samples=ref.fit.n,
+               fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'))
+    rep = Report('Commissioned reference model')
+    rep.text(f'Calibration batch: {ref.fit.n} held-plate measurements; RMSE {ref.fit.rmse:.4f} N.\n\n'
+             f'Model: {ref.model!r}')
+    rep.table(['fan', 'thrust gain', 'width scale', 'landing offset x [cm]', 'y [cm]'],
+              [[k, f'{v["gain"]:.3f}', f'{v["width_scale"]:.3f}', f'{100 * v["offset_m"][0]:.1f}',
+                f'{100 * v["offset_m"][1]:.1f}'] for k, v in ref.build().items()], heading='Each fan\'s build')
+    rep.summary = {'command': 'fit --commission', 'fit': ref.fit.summary(), 'build': ref.build(),
+                   'saved_model': str(save)}
+    rep.write(out)
+    print(f'commissioned reference (calibration RMSE {ref.fit.rmse:.4f} N) written to {save}')
+    print(f'report: {out}/')
+    return 0
+
+
+def _cmd_compare(args) -> int:
+    from ..workbench.commands import compare_command
+    _load_plugins(args.plugin)
+    setup = _setup(args)
+    paths = [Path(p) for p in (args.model or [])] or [_model_path(setup, None)]
+    models = {}
+    for p in paths:
+        label = p.stem if p.stem not in models else str(p)
+        models[label] = setup.load_model(p)
+    data = _data(setup, args)
+    out = _out(args, 'compare')
+    compare_command(models, data, setup.geometry, out, refit=not args.no_refit)
+    doc = json.loads((out / 'summary.json').read_text())
+    for label, m in doc['models'].items():
+        print(f'{label:20s} held-out model error {m["heldout_model_rmse_N"]:.3f} N, '
+              f'RMSE {m["heldout_raw"]["rmse"]:.3f} N')
+    print(f'report: {out}/')
+    return 0
+
+
+def _cmd_diagnose(args) -> int:
+    from ..workbench.commands import diagnose_command
+    from ..workbench.diagnose import Diagnosis
+    library = _library(args)
+    setup = _setup(args)
+    path = _model_path(setup, args.model)
+    model = setup.load_model(path)
+    data = _data(setup, args)
+    out = _out(args, 'diagnose')
+    d = diagnose_command(model, data, setup.geometry, out,
+                         diagnosis=Diagnosis(library, max_effects=args.max_effects, noise_sd=args.noise_sd),
+                         truth=_hidden(args) if args.sim else ())
+    print(d.summary())
+    print(f'report: {out}/ (report.html, report.md, summary.json)')
+    return 0
+
+
+def _cmd_add(args) -> int:
+    from ..workbench.closed_loop import compare_closed_loop
+    from ..workbench.commands import add_command
+    library = _library(args)
+    setup = _setup(args)
+    path = _model_path(setup, args.model)
+    model = setup.load_model(path)
+    additions = list(args.effect or [])
+    if args.from_diagnosis:
+        doc = json.loads(Path(args.from_diagnosis).read_text())
+        additions += [(f['candidate'], f['params']) for f in doc.get('findings', [])]
+    if not additions:
+        raise WindShaperError('nothing to add: give --effect NAME (a candidate such as fan_gain[HM2] or '
+                              'swirl, or a term kind) or --from-diagnosis <summary.json>')
+    data = _data(setup, args)
+    out = _out(args, 'add')
+    if args.closed_loop and not args.sim:
+        raise WindShaperError('--closed-loop runs on the simulated tunnel: add --sim')
+    effects = _hidden(args) if args.sim else []
+    rule = {'method': args.rule} if args.rule else None
+
+    def loop(models):
+        return compare_closed_loop(setup, models, lambda s: setup.make_sim(seed=s, effects=effects),
+                                   target=args.closed_loop, iterations=args.iterations,
+                                   seeds=tuple(range(args.loop_seeds)), rule_overrides=rule)
+    save = args.save or (out / 'model.yaml')
+    res = add_command(model, additions, data, setup.geometry, out, save=save, library=library,
+                      closed_loop=loop if args.closed_loop else None, noise_sd=args.noise_sd)
+    print(f'held-out model error {res.before["model_rmse"]:.3f} N -> {res.after["model_rmse"]:.3f} N; '
+          f'new model written to {save}')
+    if res.closed_loop is not None:
+        k = res.closed_loop.errors[next(iter(res.closed_loop.errors))].shape[1] - 1
+        print('closed loop, true-field RMSE at iteration '
+              f'{k}: ' + ', '.join(f'{lab} {v:.3f} N' for lab, v in res.closed_loop.at(k).items()))
+    print(f'report: {out}/')
+    return 0
+
+
+# -- argument layer ---------------------------------------------------------------------------------
+
+def _common(p, multi_model=False):
+    p.add_argument('--config', type=Path, default=None, help='config folder (default: the shipped one)')
+    p.add_argument('--disable', action='append', default=[], metavar='FAN', help='a disabled fan; repeat')
+    src = p.add_argument_group('sweeps')
+    src.add_argument('--sim', action='store_true', help='sweep the simulated tunnel (config sim.yaml)')
+    src.add_argument('--hidden', action='append', default=[], metavar='EFFECT[:k=v,...]',
+                     help='switch on a simulator hidden effect, e.g. weak_fan:fan=HM2,gain=0.8 or '
+                          'tilted_fan:fan=LM2,shift=0.04/0; repeat for more (with --sim)')
+    src.add_argument('--sweeps', type=int, default=12, help='simulated sweeps (first and last with fans off)')
+    src.add_argument('--samples', type=int, default=1000, help='plate samples per simulated sweep')
+    src.add_argument('--seed', type=int, default=0, help='simulator seed')
+    src.add_argument('--data', type=Path, default=None,
+                     help='recorded sweeps: a rosbag2 bag, a coordinator run folder or a shape report')
+    if multi_model:
+        p.add_argument('--model', type=Path, action='append', default=None,
+                       help='a model file; repeat to compare several (default: the reference)')
+    else:
+        p.add_argument('--model', type=Path, default=None,
+                       help=f'model file (default: {REFERENCE_FILE} in the config folder, else model.yaml)')
+    p.add_argument('--plugin', action='append', default=[], metavar='FILE.py|MODULE',
+                   help='import your own terms (and candidate FAMILIES) first; repeat for more')
+    p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/model-<cmd>-<time>)')
+    p.add_argument('--noise-sd', type=float, default=None, metavar='N',
+                   help='measurement noise per sample [N], when the held-out sweeps are too short to '
+                        'estimate it (they must revisit places)')
+
+
+def register(subparsers) -> None:
+    model = subparsers.add_parser(
+        'model', help='the model workbench: fit, compare, diagnose, add effects',
+        description='Compare the model with sweeps, see where it fails, find the physical effect it '
+                    'misses, add it and watch the error fall (docs/workbench.md).')
+    sub = model.add_subparsers(dest='model_command', required=True)
+
+    p = sub.add_parser('fit', help='fit the model to sweeps with uncertainties; scores, held-out error, '
+                                   'residual maps')
+    _common(p)
+    p.add_argument('--save', type=Path, default=None, help='write the fitted model file here')
+    p.add_argument('--commission', action='store_true',
+                   help='instead: run the commissioning calibration batch (--sim) and fit the reference '
+                        'model (each fan\'s gain, width, landing; curve bend and flatness per group)')
+    p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser('compare', help='several models against the same sweeps, side by side')
+    _common(p, multi_model=True)
+    p.add_argument('--no-refit', action='store_true', help='score the models as they are (no refit)')
+    p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser('diagnose', help='find which physical effect the model misses')
+    _common(p)
+    p.add_argument('--families', default=None,
+                   help='comma-separated candidate families (default: all; see docs/workbench.md)')
+    p.add_argument('--max-effects', type=int, default=3, help='most effects forward selection adds')
+    p.set_defaults(func=_cmd_diagnose)
+
+    p = sub.add_parser('add', help='add effects to the model, refit, before/after report, new model file')
+    _common(p)
+    p.add_argument('--effect', action='append', default=[], metavar='NAME[:k=v,...]',
+                   help='a library candidate (fan_gain[HM2], swirl, wall_layer, ...) or a registered '
+                        'term kind (your own, with --plugin); repeat for more')
+    p.add_argument('--from-diagnosis', type=Path, default=None, metavar='SUMMARY_JSON',
+                   help='add the findings of `model diagnose` (its summary.json)')
+    p.add_argument('--save', type=Path, default=None, help='new model file (default: <out>/model.yaml)')
+    p.add_argument('--closed-loop', default=None, metavar='TARGET',
+                   help='also run the shaping loop on the simulated tunnel with the old and the new '
+                        'model toward TARGET (uniform, parabolic, gaussian@FAN, ...)')
+    p.add_argument('--iterations', type=int, default=6, help='closed-loop updates')
+    p.add_argument('--loop-seeds', type=int, default=1, help='closed-loop runs per model (seeds 0..N-1)')
+    p.add_argument('--rule', default=None, help='update rule for the closed loop (default: shaping.yaml)')
+    p.set_defaults(func=_cmd_add)

@@ -1,0 +1,339 @@
+"""What ``wind-shaper model fit | compare | diagnose | add`` do, without the argument parsing.
+
+Each function takes a model, sweeps and the tunnel geometry, does its job and writes a report
+folder (``report.html``, ``report.md``, PNG plots, ``summary.json``); it returns the objects it
+made so that scripts and tests can use them directly.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..core.effects import Wrapper
+from ..core.geometry import TunnelGeometry
+from ..core.model import TERMS, Term
+from ..core.modelfile import save_model
+from .data import SweepSet, design_commands, from_sim
+from .diagnose import Diagnosis, fit_mask
+from .errors import CandidateError
+from .fitting import FitResult, fit_model
+from .library import Library, apply_candidate, candidate_for_hidden_effect, default_library
+from .metrics import HeldOut, evaluate
+from .report import (Report, plot_closed_loop, plot_fan_curves, plot_measured_vs_model,
+                     plot_radial_angular, plot_ranking, plot_residual_maps)
+from .residuals import analyse_residuals
+
+__all__ = ['simulated_sweeps', 'fit_command', 'compare_command', 'diagnose_command', 'add_command',
+           'parse_spec', 'model_with_additions', 'FitOutcome', 'AddOutcome']
+
+
+def simulated_sweeps(tunnel, n_sweeps: int = 12, *, seed: int = 0, n_samples: int = 1000,
+                     high: float = 0.9) -> SweepSet:
+    """A diagnostic data set on a (simulated) tunnel: ``n_sweeps`` sweeps, the first and last
+    with every fan off (a background or dead band shows there), the rest at Latin-hypercube
+    commands in [0, ``high``] (``design_commands``, seeded by ``seed``)."""
+    n = tunnel.geometry.fans.n_fans
+    enabled = tunnel.geometry.fans.enabled
+    inner = design_commands(n, max(n_sweeps - 2, 1), high=high, seed=seed, enabled=enabled)
+    U = np.vstack([np.zeros(n), inner, np.zeros(n)]) if n_sweeps >= 3 else inner
+    effects = ', '.join(e.name for e in getattr(tunnel, 'effects', ())) or 'none'
+    return from_sim(tunnel, U, n_samples=n_samples,
+                    source=f'simulated tunnel (seed {getattr(tunnel, "seed", "?")}, hidden effects: {effects})')
+
+
+def _fmt(x, digits=3):
+    return f'{x:.{digits}f}'
+
+
+def _residual_sections(report: Report, analyses: Mapping, geometry: TunnelGeometry, key: str):
+    report.figure(f'{key}_maps', plot_residual_maps(analyses, geometry),
+                  'GP-smoothed residual (measured - model) over the tunnel, fans drawn; right: its '
+                  'standard deviation', heading='Where the model fails')
+    last = list(analyses.values())[-1]
+    report.figure(f'{key}_fans', plot_fan_curves(last, geometry),
+                  'residual near each fan against that fan\'s command (share of the residual variance '
+                  'each fan\'s command explains)')
+    report.figure(f'{key}_radial', plot_radial_angular(last), 'residual against radius and angle')
+    report.bullets(last.describe(), heading='Structure of the residual')
+
+
+# -- fit ------------------------------------------------------------------------------------------
+
+@dataclass
+class FitOutcome:
+    fit: FitResult
+    heldout: dict
+    train: dict
+    analysis: object
+    report: Path
+
+
+def fit_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out, *,
+                test_fraction: float = 1 / 3, cell: float = 0.04, save: Path | None = None,
+                source_model: str = '') -> FitOutcome:
+    """Fit the model's free parameters (bounded least squares, Gauss-Newton uncertainties) on
+    the training sweeps; score it per sweep and overall, and on the held-out sweeps; map where it
+    fails. ``save``: write the fitted model file there."""
+    data.check_fans(geometry.fans.names)
+    train, test = data.split(test_fraction) if len(data) >= 3 else (data, None)
+    fd = train.fit_data(cell)
+    fit = fit_model(model, fd, free=fit_mask(model), max_nfev=80)
+    train_scores = evaluate(fit.model, fd, train.labels)
+    held = None
+    if test is not None:
+        ho = HeldOut(test)
+        held = ho.evaluate(fit.model)
+    raw = (test or train).fit_data(cell)
+    analysis = analyse_residuals(fit.model, raw, geometry)
+    rep = Report('Model fit')
+    rep.text(f'Data: {data.source}, {len(data)} sweeps ({data.n_samples} samples); fitted on {len(train)} '
+             f'sweeps ({len(fd)} cell means of {cell * 100:.0f} cm), held out: '
+             f'{", ".join(test.labels) if test is not None else "none"}.\n\nModel: {source_model}\n\n'
+             f'Fitted: {fit.model!r}')
+    ov = train_scores['overall']
+    rows = [['training (cell means)', _fmt(ov.rmse), _fmt(ov.r2, 4), _fmt(ov.max_error), _fmt(ov.bias), ov.n]]
+    if held is not None:
+        h = held['raw']
+        rows.append(['held out (raw samples)', _fmt(h.rmse), _fmt(h.r2, 4), _fmt(h.max_error), _fmt(h.bias), h.n])
+    rep.table(['data', 'RMSE [N]', 'R²', 'largest error [N]', 'bias [N]', 'n'], rows, heading='Scores')
+    if held is not None:
+        rep.text(f'Held-out model error (measurement noise removed): {held["model_rmse"]:.3f} N; the '
+                 f'measurement noise is {held["noise_sd"]:.3f} N per sample.')
+    per = [[k, _fmt(s.rmse), _fmt(s.r2, 4), _fmt(s.max_error), s.n] for k, s in train_scores['per_sweep'].items()]
+    if held is not None:
+        per += [[f'{k} (held out)', _fmt(s.rmse), _fmt(s.r2, 4), _fmt(s.max_error), s.n]
+                for k, s in held['per_sweep'].items()]
+    rep.table(['sweep', 'RMSE [N]', 'R²', 'largest error [N]', 'n'], per, heading='Per sweep')
+    rep.table(['parameter', 'value', 'std'], [[n, f'{v:.5g}', f'{s:.2g}'] for n, v, s in
+                                              zip(fit.names, fit.theta, fit.theta_std)],
+              heading='Fitted parameters (1-sigma, Gauss-Newton)')
+    rep.figure('measured_vs_model', plot_measured_vs_model(fit.model(fd.U, fd.Z), fd.y, train_scores['per_sweep']),
+               'measured against model on the training cells; RMSE per sweep')
+    _residual_sections(rep, {'fitted model': analysis}, geometry, 'residual')
+    if save is not None:
+        save_model(save, fit.model, fitted_from=data.source, rmse_N=round(fit.rmse, 5), n_samples=fit.n,
+                   fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'))
+        rep.text(f'Fitted model written to {save}.', heading='Model file')
+    rep.summary = {'command': 'fit', 'data': data.source, 'sweeps': list(data.labels),
+                   'fit': fit.summary(), 'train': {k: v.to_json() for k, v in train_scores['per_sweep'].items()},
+                   'train_overall': ov.to_json(),
+                   'heldout': None if held is None else {
+                       'model_rmse_N': held['model_rmse'], 'noise_sd_N': held['noise_sd'],
+                       'raw': held['raw'].to_json(),
+                       'per_sweep': {k: v.to_json() for k, v in held['per_sweep'].items()}},
+                   'residual': analysis.to_json(), 'saved_model': str(save) if save else None}
+    return FitOutcome(fit, held, train_scores, analysis, rep.write(out))
+
+
+# -- compare --------------------------------------------------------------------------------------
+
+def compare_command(models: Mapping[str, Term], data: SweepSet, geometry: TunnelGeometry, out, *,
+                    refit: bool = True, test_fraction: float = 1 / 3, cell: float = 0.04) -> dict:
+    """Several models against the same sweeps, side by side: held-out scores and model error,
+    residual maps on one colour scale. ``refit``: fit each model's free parameters on the
+    training sweeps first (as ``fit`` does); else score them as they are."""
+    data.check_fans(geometry.fans.names)
+    train, test = data.split(test_fraction)
+    fd = train.fit_data(cell)
+    ho = HeldOut(test)
+    results, analyses, noise = {}, {}, None
+    tf = test.fit_data(cell)
+    for label, model in models.items():
+        m = fit_model(model, fd, free=fit_mask(model), max_nfev=80).model if refit else model
+        if noise is None:
+            noise = ho.estimate_noise(m)
+            ho.noise_sd = noise
+        results[label] = (m, ho.evaluate(m))
+        analyses[label] = analyse_residuals(m, tf, geometry)
+    rep = Report('Model comparison')
+    rep.text(f'Data: {data.source}; {"refitted on" if refit else "scored as given; training sweeps"} '
+             f'{", ".join(train.labels)}; held out: {", ".join(test.labels)}. Measurement noise '
+             f'{noise:.3f} N per sample.')
+    rows = [[label, _fmt(ev['model_rmse']), _fmt(ev['raw'].rmse), _fmt(ev['raw'].r2, 4),
+             _fmt(ev['raw'].max_error), repr(m)[:90]] for label, (m, ev) in results.items()]
+    rep.table(['model', 'held-out model error [N]', 'held-out RMSE [N]', 'R²', 'largest error [N]',
+               'model'], rows, heading='Held-out scores')
+    _residual_sections(rep, analyses, geometry, 'compare')
+    rep.summary = {'command': 'compare', 'data': data.source, 'refit': refit, 'noise_sd_N': noise,
+                   'models': {label: {'model': repr(m), 'heldout_model_rmse_N': ev['model_rmse'],
+                                      'heldout_raw': ev['raw'].to_json(),
+                                      'residual': analyses[label].to_json()}
+                              for label, (m, ev) in results.items()}}
+    rep.write(out)
+    return {label: m for label, (m, _) in results.items()}
+
+
+# -- diagnose -------------------------------------------------------------------------------------
+
+def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out, *,
+                     library: Library | None = None, truth: Sequence = (),
+                     diagnosis: Diagnosis | None = None) -> Diagnosis:
+    """Run the diagnosis and report it: verdict, findings with parameters and uncertainties,
+    the ranked table of candidates, residual maps before and after. ``truth``: the simulator's
+    hidden effects, when known, to set the findings beside."""
+    d = (diagnosis or Diagnosis(library)).fit(model, data, geometry)
+    rep = Report('Model diagnosis')
+    rep.text(f'Data: {data.source}, {len(data)} sweeps; held out: {", ".join(d.test_sweeps_.labels)}.\n\n'
+             f'Model: {model!r}')
+    rep.text(d.summary(), heading='Verdict')
+    if truth:
+        rows = []
+        found = {t.candidate.name: t for t in d.steps_}
+        for effect in truth:
+            try:
+                name, expected = candidate_for_hidden_effect(effect)
+            except CandidateError:
+                rows.append([effect.name, '-', str(effect.truth()), 'no library candidate'])
+                continue
+            got = found.get(name)
+            rows.append([effect.name, name, str(expected), str(got.params) if got else 'not found'])
+        rep.table(['hidden effect (simulator)', 'candidate', 'truth', 'fitted'], rows,
+                  heading='Against the simulator\'s truth')
+    for i, ranking in enumerate(d.rankings_):
+        rep.table(['rank', 'candidate', 'held-out model error [N]', 'drop', 'ΔBIC', 'parameters', 'verdict'],
+                  [[k + 1, t.candidate.name, _fmt(t.heldout_rmse), f'{100 * t.gain:.0f} %', f'{t.dbic:.0f}',
+                    _short_params(t.params), 'reported' if t.passed and t in d.steps_ else
+                    ('; '.join(t.reasons) or 'passes, not the best')] for k, t in enumerate(ranking[:15])],
+                  heading=f'Step {i + 1}: candidates ranked by held-out error')
+        before = d.baseline_rmse_ if i == 0 else d.steps_[i - 1].heldout_rmse
+        rep.figure(f'ranking_step{i + 1}', plot_ranking(ranking, before),
+                   f'held-out model error with each candidate at step {i + 1}')
+    every = data.fit_data(d.cell)  # all sweeps: the structure needs many commands
+    analyses = {'before': analyse_residuals(d.baseline_.model, every, geometry)}
+    if d.steps_:
+        analyses['after'] = analyse_residuals(d.final_.model, every, geometry)
+    _residual_sections(rep, analyses, geometry, 'diagnosis')
+    rep.summary = {'command': 'diagnose', 'data': data.source, **d.to_json(),
+                   'residual_before': analyses['before'].to_json(),
+                   'residual_after': analyses['after'].to_json() if 'after' in analyses else None,
+                   'truth': [e.spec() for e in truth]}
+    rep.write(out)
+    return d
+
+
+def _short_params(params: dict) -> str:
+    out = []
+    for k, v in params.items():
+        v = np.round(np.asarray(v, float), 3)
+        out.append(f'{k}={v.tolist() if v.ndim else float(v)}')
+    return ', '.join(out)
+
+
+# -- add ------------------------------------------------------------------------------------------
+
+def parse_spec(text: str) -> tuple[str, dict]:
+    """``name`` or ``name:key=value,key=value`` (values: numbers, lists as a/b/c, or words)."""
+    name, _, rest = text.partition(':')
+    params = {}
+    for item in filter(None, rest.split(',')):
+        key, eq, value = item.partition('=')
+        if not eq:
+            raise CandidateError(f'{text!r}: write parameters as key=value (e.g. fan_gain[HM2]:gain=0.8)')
+        parts = value.split('/')
+        conv = []
+        for p in parts:
+            try:
+                conv.append(float(p))
+            except ValueError:
+                conv.append(p)
+        params[key.strip()] = conv[0] if len(conv) == 1 else conv
+    return name.strip(), params
+
+
+def model_with_additions(model: Term, additions: Sequence, geometry: TunnelGeometry,
+                         library: Library | None = None) -> Term:
+    """``model`` extended by each addition: a library candidate name (``fan_gain[HM2]``,
+    ``swirl``) or ``(name, params)``, or a registered term kind (``(kind, params)``; a
+    ``Wrapper`` subclass wraps the model, any other term is added with ``+``)."""
+    library = library or default_library()
+    for item in additions:
+        name, params = (parse_spec(item) if isinstance(item, str) else (item[0], dict(item[1])))
+        cands = {c.name: c for c in library.candidates(model, geometry)}
+        if name in cands:
+            model = apply_candidate(model, cands[name], **params)
+            continue
+        cls = TERMS.get(name)
+        if cls is None:
+            raise CandidateError(f'{name!r} is neither a candidate for this model ({sorted(cands)}) nor a '
+                                 f'registered term kind ({sorted(TERMS)}); a term of your own must be '
+                                 f'imported first (--plugin)')
+        try:
+            model = cls(model.fans, model, **params) if issubclass(cls, Wrapper) else model + cls(model.fans, **params)
+        except TypeError as exc:
+            raise CandidateError(f'cannot build {name!r} with {params}: {exc}') from None
+    return model
+
+
+@dataclass
+class AddOutcome:
+    model: Term
+    before: dict
+    after: dict
+    closed_loop: object
+    report: Path
+
+
+def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: TunnelGeometry, out, *,
+                save: Path | None = None, library: Library | None = None, test_fraction: float = 1 / 3,
+                cell: float = 0.04, closed_loop=None, noise_sd: float | None = None) -> AddOutcome:
+    """Add effects to the model, refit both old and new on the training sweeps and show them
+    side by side on the held-out sweeps (model error, residual maps). ``closed_loop``: a
+    callable ``(models) -> LoopComparison`` (the CLI runs the simulator's shaping loop);
+    noise_sd [N]: the measurement noise, when the sweeps are too short to estimate it."""
+    data.check_fans(geometry.fans.names)
+    new = model_with_additions(model, additions, geometry, library)
+    train, test = data.split(test_fraction)
+    fd = train.fit_data(cell)
+    ho = HeldOut(test)
+    old_fit = fit_model(model, fd, free=fit_mask(model), max_nfev=80)
+    new_fit = fit_model(new, fd, free=fit_mask(new), max_nfev=80)
+    ho.noise_sd = noise_sd if noise_sd is not None else ho.estimate_noise(old_fit.model)
+    before, after = ho.evaluate(old_fit.model), ho.evaluate(new_fit.model)
+    tf = test.fit_data(cell)
+    analyses = {'before': analyse_residuals(old_fit.model, tf, geometry),
+                'after': analyse_residuals(new_fit.model, tf, geometry)}
+    rep = Report('Adding effects to the model')
+    drop = 1 - after['model_rmse'] / before['model_rmse'] if before['model_rmse'] > 0 else 0.0
+    rep.text(f'Data: {data.source}; trained on {", ".join(train.labels)}; held out {", ".join(test.labels)}.\n\n'
+             f'Added: {", ".join(map(str, additions))}.\n\nNew model: {new_fit.model!r}')
+    rep.table(['', 'held-out model error [N]', 'held-out RMSE [N]', 'R²', 'largest error [N]', 'training BIC'],
+              [['before', _fmt(before['model_rmse']), _fmt(before['raw'].rmse), _fmt(before['raw'].r2, 4),
+                _fmt(before['raw'].max_error), f'{old_fit.bic:.0f}'],
+               ['after', _fmt(after['model_rmse']), _fmt(after['raw'].rmse), _fmt(after['raw'].r2, 4),
+                _fmt(after['raw'].max_error), f'{new_fit.bic:.0f}']],
+              heading=f'Before and after: held-out model error {100 * drop:.0f} % lower')
+    params = []
+    for n, v, s in zip(new_fit.names, new_fit.theta, new_fit.theta_std):
+        if n not in old_fit.names:
+            params.append([n, f'{v:.4g}', f'{s:.2g}'])
+    rep.table(['new parameter', 'value', 'std'], params, heading='The added effects, fitted')
+    _residual_sections(rep, analyses, geometry, 'add')
+    loop = None
+    if closed_loop is not None:
+        loop = closed_loop({'before': model, 'after (refitted)': new_fit.model})
+        rep.figure('closed_loop', plot_closed_loop(loop),
+                   'true-field RMSE to the target per iteration on the simulated tunnel', heading='Closed loop')
+        rep.table(['iteration'] + list(loop.errors),
+                  [[k] + [_fmt(float(np.median(e[:, k]))) for e in loop.errors.values()]
+                   for k in range(next(iter(loop.errors.values())).shape[1])])
+    if save is not None:
+        save_model(save, new_fit.model, fitted_from=data.source, added=[str(a) for a in additions],
+                   rmse_N=round(new_fit.rmse, 5), heldout_model_rmse_N=round(after['model_rmse'], 5),
+                   fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'))
+        rep.text(f'New model written to {save}; give it to the loop with `wind-shaper shape --model {save}`.',
+                 heading='Model file')
+    rep.summary = {'command': 'add', 'data': data.source, 'added': [str(a) for a in additions],
+                   'before': {'model': repr(old_fit.model), 'heldout_model_rmse_N': before['model_rmse'],
+                              'heldout_raw': before['raw'].to_json(), 'bic': old_fit.bic},
+                   'after': {'model': repr(new_fit.model), 'heldout_model_rmse_N': after['model_rmse'],
+                             'heldout_raw': after['raw'].to_json(), 'bic': new_fit.bic,
+                             'parameters': new_fit.summary()['parameters']},
+                   'heldout_drop': drop, 'noise_sd_N': ho.noise_sd,
+                   'residual_before': analyses['before'].to_json(), 'residual_after': analyses['after'].to_json(),
+                   'closed_loop': loop.to_json() if loop is not None else None,
+                   'saved_model': str(save) if save else None}
+    return AddOutcome(new_fit.model, before, after, loop, rep.write(out))
