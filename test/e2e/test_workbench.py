@@ -11,6 +11,7 @@ def _summary(out):
     return json.loads((out / 'summary.json').read_text())
 
 
+@pytest.mark.slow
 def test_diagnose_then_add_on_the_simulator(tmp_path, capsys):
     hidden = ['--sim', '--hidden', 'tilted_fan:fan=LM2,shift=0.04/0', '--seed', '5']
     diag = tmp_path / 'diag'
@@ -39,6 +40,7 @@ def test_diagnose_then_add_on_the_simulator(tmp_path, capsys):
                  '--out', str(tmp_path / 'shape')]) == 0
 
 
+@pytest.mark.slow
 def test_fit_and_compare_write_their_reports(tmp_path, capsys):
     fit = tmp_path / 'fit'
     assert main(['model', 'fit', '--sim', '--sweeps', '6', '--samples', '1000', '--out', str(fit),
@@ -67,6 +69,7 @@ def test_bad_input_is_named(argv, message, capsys, tmp_path):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_whole_way_through_a_bag(tmp_path, capsys):
     """Record sweeps of a tunnel with a weak fan into a bag, diagnose from the bag, add the
     effect, and rerun: the new model predicts the held-out sweeps better and shapes better."""

@@ -113,6 +113,7 @@ def test_heldout_model_error_removes_the_turbulence(rig):
     assert s.rmse == pytest.approx(np.sqrt(14 / 3)) and s.max_error == 3.0 and s.bias == 2.0
 
 
+@pytest.mark.slow
 def test_commissioning_recovers_each_fans_build(wb_setup):
     """The reference commissioned on the calibration batch predicts the (effect-free) tunnel's
     true field at new commands within a few hundredths of a newton, puts each jet where the

@@ -41,6 +41,7 @@ def _check_parameters(trial, effect):
         np.testing.assert_allclose(got, want, atol=tol, err_msg=f'{effect.name}.{key}')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('effect', list(TOLERANCE))
 def test_each_hidden_effect_is_found_fitted_and_pays_off(effect, diagnosed, reference, wb_setup):
     d, (hidden,) = diagnosed(effect)
@@ -59,6 +60,7 @@ def test_each_hidden_effect_is_found_fitted_and_pays_off(effect, diagnosed, refe
     assert at6['after'] < at6['before'], at6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('pair', [('weak_fan', 'swirl'), ('tilted_fan', 'background_draft')])
 def test_two_hidden_effects_at_once_are_both_found(pair, diagnosed):
     d, hidden = diagnosed(*pair)
@@ -95,6 +97,7 @@ class StrayJet(HiddenEffect):
                                   np.array([self.width]), np.array([-1]))]
 
 
+@pytest.mark.slow
 def test_an_effect_no_candidate_explains_is_said_plainly_with_its_structure(diagnosed, sim_data, wb_setup):
     from wind_shaper.workbench.residuals import analyse_residuals
     d, _ = diagnosed(StrayJet())
@@ -107,6 +110,7 @@ def test_an_effect_no_candidate_explains_is_said_plainly_with_its_structure(diag
     assert 'total thrust' in structure.describe()[0]
 
 
+@pytest.mark.slow
 def test_the_ranking_table_and_json_are_complete(diagnosed):
     d, _ = diagnosed('weak_fan')
     names = [t.candidate.name for t in d.ranking_]
