@@ -15,6 +15,9 @@ covers the wall; prior: the rig's fitted jets (config/model.yaml) on every fan.
   python bench/scale.py --series           # + how time grows with fans, key points, samples
                                            #   (writes bench/out/scale.json and docs/scaling.png)
   python bench/scale.py --gp-accuracy      # local GP vs exact GP on walls small enough for both
+
+(The GP-accuracy cases and the exact GP at 4,865 samples run in the same process and raise its
+max RSS; run without --gp-accuracy for the wall's own footprint.)
 """
 from __future__ import annotations
 
@@ -60,7 +63,11 @@ def wall_prior(fans: FanArray) -> FanJets:
 
 
 def run(n_side: int, n_key: int, n_samples: int, iterations: int = 4, target: float = 10.0,
-        u0: float = 0.3, seed: int = 0, truth: bool = True, method: str = 'adaptive') -> dict:
+        u0: float = 0.3, seed: int = 0, truth: bool = True, method: str = 'adaptive',
+        memory: bool = False) -> dict:
+    """One run on an n x n wall. Times are CPU/wall seconds of estimate and update per
+    iteration; with ``memory`` tracemalloc records the peak (it slows allocation-heavy code
+    several-fold, so timing runs leave it off)."""
     geo = wall(n_side, n_key)
     sim = SimulatedTunnel(geo, seed=seed)
     setup = Setup.load()
@@ -78,12 +85,15 @@ def run(n_side: int, n_key: int, n_samples: int, iterations: int = 4, target: fl
         def measure(applied=applied, sweep=sweep, rows_est=rows_est):
             return applied, sweep, _timed(rows_est, loop.estimator.estimate, sweep, kp)
         loop.measure = measure
-        tracemalloc.start()
+        if memory:
+            tracemalloc.start()
         c0, w0 = time.thread_time(), time.perf_counter()
         rec = loop.iterate(update=True)
         cpu, wall_s = time.thread_time() - c0, time.perf_counter() - w0
-        peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
-        tracemalloc.stop()
+        peak = None
+        if memory:
+            peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
+            tracemalloc.stop()
         row = {'k': i, 'estimate_cpu_s': rows_est['cpu'], 'estimate_wall_s': rows_est['wall'],
                'update_cpu_s': cpu - rows_est['cpu'], 'update_wall_s': wall_s - rows_est['wall'],
                'peak_traced_MB': peak, 'max_rss_MB': resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -93,7 +103,7 @@ def run(n_side: int, n_key: int, n_samples: int, iterations: int = 4, target: fl
         rows.append(row)
         print(f"  {n_side}x{n_side} fans, {len(kp)} key points, {n_samples} samples, k={i}: estimate "
               f"{row['estimate_cpu_s']:.2f} s, update {row['update_cpu_s']:.2f} s (cpu); "
-              f"peak {peak:.0f} MB traced, {row['max_rss_MB']:.0f} MB rss"
+              + (f"peak {peak:.0f} MB traced, " if memory else '') + f"{row['max_rss_MB']:.0f} MB rss"
               + (f"; true RMSE {row['true_rmse_N']:.3f} N" if truth else ''), flush=True)
     if truth:  # the commands of the last update, measured
         row = {'k': iterations, 'true_rmse_N': float(np.sqrt(np.mean((sim.true_field(loop.U, kp) - tv) ** 2)))}
@@ -105,7 +115,7 @@ def run(n_side: int, n_key: int, n_samples: int, iterations: int = 4, target: fl
             'update_cpu_s': float(np.median([r['update_cpu_s'] for r in steady])),
             'total_cpu_s': float(np.median([r['estimate_cpu_s'] + r['update_cpu_s'] for r in steady])),
             'total_wall_s': float(np.median([r['estimate_wall_s'] + r['update_wall_s'] for r in steady])),
-            'peak_traced_MB': float(max(r['peak_traced_MB'] for r in rows[:iterations])),
+            'peak_traced_MB': (float(max(r['peak_traced_MB'] for r in rows[:iterations])) if memory else None),
             'max_rss_MB': float(rows[iterations - 1]['max_rss_MB'])}
 
 
@@ -154,6 +164,7 @@ def plot(series, path):
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     for ax, (name, label) in zip(axes, (('fans', 'fans (n x n wall, key points and samples grow with area)'),
                                         ('key_points', 'key points (36 x 36 wall, 50,000 samples)'),
@@ -166,6 +177,9 @@ def plot(series, path):
                                 ('total_cpu_s', 'k^-', 'estimate + update')):
             ax.loglog(x, [r[key] for r in rows], style, label=lab)
         ax.axhline(2.0, color='r', ls=':', lw=1, label='2 s target')
+        ax.set_xticks(x)
+        ax.set_xticklabels([f'{v:,}' for v in x], fontsize=7, rotation=30)
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel(label, fontsize=8)
         ax.set_ylabel('CPU time per iteration [s]')
         ax.grid(True, which='both', alpha=0.3)
@@ -184,18 +198,26 @@ def main(argv=None):
     ap.add_argument('--iterations', type=int, default=4)
     ap.add_argument('--json', default='bench/out/scale.json')
     ap.add_argument('--plot', default='docs/scaling.png')
+    ap.add_argument('--replot', action='store_true', help='only redraw the plot from --json')
     args = ap.parse_args(argv)
+    if args.replot:
+        plot(json.loads(Path(args.json).read_text())['series'], args.plot)
+        return
     doc = {}
     if args.gp_accuracy:
         print('Local GP vs exact GP:')
         doc['gp_accuracy'] = gp_accuracy()
     print('36 x 36 wall, 10,000 key points, 50,000 samples per sweep:')
     main_run = run(36, 10_000, 50_000, iterations=args.iterations)
+    print('  the same with tracemalloc on (peak memory of estimate + update):')
+    mem_run = run(36, 10_000, 50_000, iterations=3, truth=False, memory=True)
+    main_run['peak_traced_MB'] = mem_run['peak_traced_MB']
+    main_run['peak_traced_MB_per_iteration'] = [r['peak_traced_MB'] for r in mem_run['iterations']]
     doc['wall_36x36'] = main_run
     print(f"  => estimate {main_run['estimate_cpu_s']:.2f} s + update {main_run['update_cpu_s']:.2f} s = "
           f"{main_run['total_cpu_s']:.2f} s CPU per iteration ({main_run['total_wall_s']:.2f} s wall); "
-          f"setup once per run {main_run['setup_cpu_s']:.2f} s; peak {main_run['peak_traced_MB']:.0f} MB traced, "
-          f"{main_run['max_rss_MB']:.0f} MB process")
+          f"setup once per run {main_run['setup_cpu_s']:.2f} s; peak {main_run['peak_traced_MB']:.0f} MB traced "
+          f"(first iteration, with the setup), {main_run['max_rss_MB']:.0f} MB process")
     if args.series:
         series = {'fans': [], 'key_points': [], 'samples': []}
         for n_side in (6, 12, 18, 24, 30):
