@@ -6,8 +6,9 @@ Units: commands U are fractions 0..1 of full PWM, one per fan; forces [N] at the
 What the paper's Algorithm 1 does, and what ``AdaptiveUpdate`` does instead:
 
 * **Bounded step, not clipping.** The step solves a least-squares problem with the PWM limits
-  (and a trust region) as box constraints (``scipy.optimize.lsq_linear``), so a fan that hits
-  its limit leaves the others to make up for it instead of being cut off after the fact.
+  (and a trust region) as box constraints (``box_qp``, a projected-Newton QP; L-BFGS-B for
+  large walls), so a fan that hits its limit leaves the others to make up for it instead of
+  being cut off after the fact.
 * **The prior, corrected by the data.** The field predicted for new commands U is anchored at
   the measured field of the best iteration so far, F_b, and moves as the prior says:
 
@@ -37,7 +38,6 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import spsolve
 
 from .errors import ConfigError
@@ -373,13 +373,20 @@ class ShapeFit:
             return theta
         A = np.zeros((P, P))
         b = np.zeros(P)
+        cache = basis.__dict__.setdefault('_normal_cache', {})
+        if len(cache) > 64:
+            cache.clear()
         for U, F, w in maps:
-            a, _ = basis.thrust(U)
-            X = np.column_stack([np.ones(len(F))] + [B * a for B in mats]
-                                + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl)
-            Xw = X * w[:, None]
-            A += X.T @ Xw
-            b += Xw.T @ (F - basis.offset - X @ mean)
+            key = (self.bases, self.swirl, U.tobytes(), F.tobytes(), w.tobytes())
+            hit = cache.get(key)
+            if hit is None:
+                a, _ = basis.thrust(U)
+                X = np.column_stack([np.ones(len(F))] + [B * a for B in mats]
+                                    + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl)
+                Xw = X * w[:, None]
+                hit = cache[key] = (X.T @ Xw, Xw.T @ (F - basis.offset - X @ mean))
+            A += hit[0]
+            b += hit[1]
         A += np.diag((self.noise_std / std) ** 2)
         keep = ~frozen
         theta = mean.copy()
@@ -458,7 +465,8 @@ class AdaptiveUpdate:
     changes the corrected prior did not predict; secant_memory: pairs used; secant_min_step:
     smallest step [fraction] a pair may come from; secant_scale: prior size of the secant
     correction relative to the prior Jacobian's RMS column (sets its ridge); noise_std [N]:
-    noise floor of a field estimate at a key point; weighting: weigh key points by
+    noise floor of a field estimate at a key point; memory: maps (besides the best one) the
+    fit and the secant use, the most recent first; weighting: weigh key points by
     1 / (1 + (std / noise_std)^2); damping: Marquardt damping of every step (a fan's move
     costs damping x its column's squared norm; keeps nearly collinear fans of a dense wall
     from trading large opposite moves); idle_below [fraction]: a command below this is sent as
@@ -483,6 +491,7 @@ class AdaptiveUpdate:
     damping: float = 0.05
     idle_below: float = 0.02
     locality: float | None = None
+    memory: int = 8
     swirl: bool = True
     inner_iterations: int = 5
     stop_factor: float = 0.5
@@ -557,6 +566,9 @@ class AdaptiveUpdate:
             near = [np.exp(-(np.max(np.abs(U - U_b)) / self.locality) ** 2) for U, _, _, _ in maps]
         else:
             near = [1.0] * len(maps)
+        # the fit and the secant use the most recent `memory` maps and the base (old maps far
+        # from the operating point add little and cost time)
+        window = sorted(set(range(max(0, len(maps) - self.memory), len(maps))) | {b})
 
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
@@ -566,8 +578,9 @@ class AdaptiveUpdate:
             # run); no secant and no swirl term; the step is a bounded QP in thrust space.
             gains = np.ones(basis.n_fans)
             if fitted and self.correction != 'none':
-                gains = _fit_gains_sparse(basis, [(U, r + ref, float(np.mean(g * w / n2)) * self.noise_std ** 2)
-                                                  for (U, r, _, _), w, n2, g in zip(maps, weights, noise2, near)],
+                gains = _fit_gains_sparse(basis, [(maps[i][0], maps[i][1] + ref,
+                                                   float(np.mean(near[i] * weights[i] / noise2[i])) * self.noise_std ** 2)
+                                                  for i in window],
                                           on, self.noise_std, ShapeFit().gain_sd, ShapeFit().offset_sd)
             Smat = (basis.shape @ sp.diags(gains)).tocsc()
 
@@ -578,8 +591,8 @@ class AdaptiveUpdate:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std)
             if fitted:
-                abs_maps = [(U, r + ref, g * w / n2 * self.noise_std ** 2)
-                            for (U, r, _, _), w, n2, g in zip(maps, weights, noise2, near)]
+                abs_maps = [(maps[i][0], maps[i][1] + ref, near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
+                            for i in window]
                 theta = fit.fit(basis, abs_maps, on)
             else:
                 theta = fit.prior(basis.n_fans)[0]
@@ -611,7 +624,7 @@ class AdaptiveUpdate:
                 return J_k @ (np.asarray(U) - U_k), J_k
             mode = 'linear'
 
-        M_vals = [model(U)[0] for U, _, _, _ in maps]
+        M_vals = {i: model(maps[i][0])[0] for i in window}
         M_b, J_b = model(U_b)
 
         # -- trust radius from the last step's prediction ---------------------------------------
@@ -644,10 +657,10 @@ class AdaptiveUpdate:
         if self.secant and len(maps) > 1 and J_b is not None:
             steps, misses = [], []
             e_b = r_b - M_vals[b]
-            for i, (U, r, _, _) in enumerate(maps):
+            for i in window:
                 if i != b:
-                    steps.append(U - U_b)
-                    misses.append((r - M_vals[i]) - e_b)
+                    steps.append(maps[i][0] - U_b)
+                    misses.append((maps[i][1] - M_vals[i]) - e_b)
             order = np.argsort([np.max(np.abs(s)) for s in steps])  # largest steps kept last
             steps = [steps[i] for i in order]
             misses = [misses[i] for i in order]
@@ -832,11 +845,40 @@ def _bounded_lsq(J, secant, residual, sw, idx, lb, ub, damping: float = 0.0) -> 
         A = A + secant.matrix()[:, idx]
     A = A * sw[:, None]
     b = -sw * residual
-    if damping > 0:
-        A = np.vstack([A, np.diag(np.sqrt(damping) * np.linalg.norm(A, axis=0))])
-        b = np.concatenate([b, np.zeros(len(idx))])
     lb = np.minimum(lb, ub)
     if np.all(ub - lb <= 0):
         return np.zeros(len(idx))
-    sol = lsq_linear(A, b, bounds=(lb - 1e-12, ub + 1e-12), method='bvls')
-    return np.clip(sol.x, lb, ub)
+    H = A.T @ A
+    H[np.diag_indices_from(H)] *= 1.0 + damping
+    return box_qp(H, -(A.T @ b), lb, ub)
+
+
+def box_qp(H, g, lb, ub, iterations: int = 100) -> np.ndarray:
+    """argmin 1/2 x^T H x + g^T x over lb <= x <= ub for a small symmetric positive
+    (semi)definite H (n, n): projected Newton with an Armijo search along the projection arc
+    (Bertsekas 1982). Exact for a strictly convex problem in a few iterations."""
+    n = len(g)
+    H = H + (1e-12 * max(float(np.trace(H)) / max(n, 1), 1e-300)) * np.eye(n)
+    x = np.clip(np.zeros(n), lb, ub)
+    f = 0.5 * x @ H @ x + g @ x
+    for _ in range(iterations):
+        grad = H @ x + g
+        tiny = 1e-12 * (1.0 + np.abs(x))
+        binding = ((x <= lb + tiny) & (grad > 0)) | ((x >= ub - tiny) & (grad < 0))
+        free = ~binding
+        d = np.zeros(n)
+        if free.any():
+            d[free] = -np.linalg.solve(H[np.ix_(free, free)], grad[free])
+        t, moved = 1.0, False
+        while t > 1e-10:
+            x_t = np.clip(x + t * d, lb, ub)
+            f_t = 0.5 * x_t @ H @ x_t + g @ x_t
+            if f_t <= f + 1e-4 * grad @ (x_t - x):
+                moved = True
+                break
+            t *= 0.5
+        if not moved or np.max(np.abs(x_t - x)) <= 1e-13 * (1.0 + np.max(np.abs(x))):
+            x = x_t if moved else x
+            break
+        x, f = x_t, f_t
+    return x

@@ -80,6 +80,20 @@ def test_on_a_linear_problem_one_step_is_the_bounded_least_squares_optimum(rng):
     assert np.linalg.norm(J @ (clipped - U) - delta) > np.linalg.norm(J @ (step.U_next - U) - delta)
 
 
+def test_box_qp_matches_a_reference_bounded_least_squares_solver(rng):
+    from wind_shaper.core.solvers import box_qp
+    for _ in range(30):
+        n = rng.integers(1, 12)
+        A = rng.normal(size=(40, n)) * rng.uniform(0.01, 10, n)
+        b = rng.normal(size=40) * 5
+        lb = rng.uniform(-1, 0, n)
+        ub = lb + rng.uniform(0, 1, n)
+        x = box_qp(A.T @ A, -A.T @ b, lb, ub)
+        ref = lsq_linear(A, b, bounds=(lb, ub), method='bvls', tol=1e-12).x
+        assert np.all((x >= lb) & (x <= ub))
+        assert np.sum((A @ x - b) ** 2) <= np.sum((A @ ref - b) ** 2) * (1 + 1e-9) + 1e-12
+
+
 def test_the_trust_radius_limits_the_first_step(rng):
     J = rng.normal(size=(40, 3))
     step = AdaptiveUpdate(radius=0.05).step(UpdateInput(0, np.full(3, .3), 50 * rng.normal(size=40), J, np.ones(3, bool)))
