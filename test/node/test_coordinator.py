@@ -351,8 +351,22 @@ def test_a_bad_target_is_refused_and_nothing_changes(graph):
     assert graph.store().load_record(0)['target'] == 'uniform:2.0'
 
 
-def test_step_gain_override_scales_the_step(graph):
-    graph.start_coordinator()
+@pytest.fixture
+def paper_config(tmp_path):
+    """The shipped config with Algorithm 1 as the update rule (its step is gain / (k + 1))."""
+    import shutil
+    from wind_shaper.core.config import default_config_dir
+    folder = tmp_path / 'paper_config'
+    shutil.copytree(default_config_dir(), folder)
+    shaping = folder / 'shaping.yaml'
+    text = shaping.read_text()
+    assert 'method: adaptive' in text or 'method: paper' in text
+    shaping.write_text(text.replace('method: adaptive', 'method: paper', 1))
+    return str(folder)
+
+
+def test_step_gain_override_scales_the_step(graph, paper_config):
+    graph.start_coordinator(config_dir=paper_config)
     r = graph.iterate(step_gain=0.2)
     assert r.success, r.message
     assert graph.store().load_record(0)['step_size'] == pytest.approx(0.2)
@@ -477,8 +491,8 @@ def test_one_iteration_with_the_real_field_estimator(ros_context, setup, tmp_pat
 
 
 # -- the CLI (wind-shaper iterate / status / cancel) against the same in-process graph -----------
-def test_cli_iterate_status_and_cancel(graph, capsys):
-    graph.start_coordinator()
+def test_cli_iterate_status_and_cancel(graph, capsys, paper_config):
+    graph.start_coordinator(config_dir=paper_config)
     assert cli(['iterate', '--count', '2', '--gain', '0.6']) == 0
     out = capsys.readouterr().out
     assert 'k= 0  RMSE' in out and 'k= 1  RMSE' in out and '-> predicted' in out
