@@ -748,7 +748,10 @@ class AdaptiveUpdate:
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'stop_reason': reason}
-        return UpdateStep(U_next, radius, U_next - U_k, info)
+        # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within
+        # the first trust region (without a history it is step_fraction / (k + 1), the paper's
+        # schedule); the radius itself [PWM fraction] is info['radius']
+        return UpdateStep(U_next, self.step_fraction * radius / self.radius, U_next - U_k, info)
 
 
 _BASIS_CACHE: dict[Any, Any] = {}
