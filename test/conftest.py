@@ -3,6 +3,7 @@
 Every ROS participant of a test uses the run's ROS_DOMAIN_ID (tools/dev.sh test sets one per
 run) and LOCALHOST discovery, so parallel runs on one machine do not see each other.
 """
+import itertools
 import os
 from pathlib import Path
 import signal
@@ -36,10 +37,18 @@ def _stop(process, grace_s=5.0):
             process.wait(timeout=grace_s)
 
 
+_domain_counter = itertools.count()
+
+
 @pytest.fixture
 def ros_env(monkeypatch):
-    """Set and return the ROS environment of this test and of the processes it starts."""
-    domain_id = os.environ.get('ROS_DOMAIN_ID') or str(os.getpid() % 101 + 1)
+    """Set and return the ROS environment of this test and of the processes it starts.
+
+    Each test gets its own ROS_DOMAIN_ID (the run's base id plus a counter, within 1..100), so
+    nothing an earlier test left in DDS (participants, in-process streams still winding down)
+    reaches it."""
+    base = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
+    domain_id = str((base + next(_domain_counter)) % 100 + 1)
     monkeypatch.setenv('ROS_DOMAIN_ID', domain_id)
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)  # deprecated; conflicts with the above
