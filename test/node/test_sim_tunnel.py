@@ -128,8 +128,7 @@ def test_yaml_lists_every_parameter_with_a_comment():
 def test_the_shipped_rig_settings_match_the_drivers(node, keys):
     """The drivers run unchanged against the simulated rig only if both sides agree."""
     other = CONFIG.parent / f'{node}.yaml'
-    if not other.is_file():
-        pytest.skip(f'config/{node}.yaml is not there yet')
+    assert other.is_file(), f'config/{node}.yaml is missing'
     mine = yaml.safe_load(CONFIG.read_text())['sim_tunnel']['ros__parameters']
     theirs = yaml.safe_load(other.read_text())[node]['ros__parameters']
     for key, their_key in keys.items():
