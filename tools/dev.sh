@@ -221,14 +221,6 @@ cmd_test() {
     log "pytest (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery LOCALHOST)"
     local rc=0
     "$PY" -m pytest -q "$@" || rc=$?
-    if ((rc == 1)); then
-        # Known problem, being fixed: a few timing-sensitive ROS node tests fail inside a full run
-        # (they pass alone). Re-run only the failed tests once, in a fresh process, and say so.
-        log "some tests failed; re-running only those once in a fresh process (known full-run interference in node tests)"
-        rc=0
-        "$PY" -m pytest -q --last-failed --last-failed-no-failures none "$@" || rc=$?
-        ((rc == 0)) && log "the failed tests passed when re-run alone"
-    fi
     case $rc in
         0) ;;
         5) die "pytest collected no tests (exit 5): counted as a failure" ;;

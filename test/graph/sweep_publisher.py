@@ -4,7 +4,8 @@ Usage: python sweep_publisher.py SWEEP_S LIFETIME_S
 
 Waits (up to 20 s) until every topic has a subscriber (the recorder), then publishes: status
 'commanding' of iteration 0 and a FanCommand (latched), status 'sweeping', SWEEP_S seconds of
-force at 1 kHz (WrenchStamped stamped at publication, force.z = 2.5 N, frame_id = its index k)
+force at 1 kHz (WrenchStamped stamped with its sample time on a 1 ms schedule, as the force
+sensor's sample clock does, force.z = 2.5 N, frame_id = its index k)
 and plate pose at 100 Hz (PoseStamped, frame 'tunnel', position x = 0.001 j, y = -0.002 j for the
 j-th pose), then status 'estimating'. Prints the counts and exits; ends by itself after
 LIFETIME_S [s] or when its parent process is gone.
@@ -15,6 +16,7 @@ import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 import rclpy
+import rclpy.time
 from rclpy.duration import Duration
 from wind_shaper_msgs.msg import FanCommand, IterationStatus
 
@@ -58,20 +60,24 @@ def main(argv):
         send_status(IterationStatus.STATE_SWEEPING)
         time.sleep(0.05)
         start = time.monotonic()
+        stamp0_ns = clock.now().nanoseconds
         k = j = 0
         while alive() and k < int(sweep_s * 1000):
             due = start + k * 1e-3
             now = time.monotonic()
             if due > now:
                 time.sleep(due - now)
+            # stamped with the schedule, not the publish time: a stalled publisher (busy machine)
+            # sends late, as a real driver would, but its samples keep their times
+            stamp = rclpy.time.Time(nanoseconds=stamp0_ns + k * 1_000_000).to_msg()
             msg = WrenchStamped()
-            msg.header.stamp = clock.now().to_msg()
+            msg.header.stamp = stamp
             msg.header.frame_id = str(k)
             msg.wrench.force.z = 2.5
             force.publish(msg)
             if k % 10 == 5:
                 p = PoseStamped()
-                p.header.stamp = clock.now().to_msg()
+                p.header.stamp = stamp
                 p.header.frame_id = names.TUNNEL_FRAME
                 p.pose.position.x, p.pose.position.y = 0.001 * j, -0.002 * j
                 p.pose.orientation.w = 1.0

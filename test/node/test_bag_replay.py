@@ -97,11 +97,21 @@ def test_replay_delivers_every_message_with_its_timing(ros_context, sweep_bag, r
     assert len(got) == len(recorded), f'got {counts} of {[(t, i.count) for t, i in topics.items()]}'
     for topic in topics:  # per topic: same bytes, same order
         assert [r for t, _, r in got if t == topic] == [bytes(r) for t, _, r in recorded if t == topic]
-    # timing: arrival offsets follow the recorded offsets / rate
+    # the player's own schedule: each publish at its recorded offset / rate
+    assert stats.late_percentile(50) < 0.005, f'median publish {stats.late_percentile(50) * 1e3:.1f} ms late'
+    assert stats.late_percentile(90) < 0.02, f'90th percentile {stats.late_percentile(90) * 1e3:.1f} ms late'
     t_bag = np.array([t for _, t, _ in recorded], dtype=float) * 1e-9
     expected = (t_bag - t_bag[0]) / rate
     per_topic = {topic: iter([a for tt, a, _ in got if tt == topic]) for topic in topics}
     arrival = np.array([next(per_topic[topic]) for topic, _, _ in recorded])
+    span = arrival[-1] - arrival[0]
+    assert abs(span - expected[-1]) < 0.25, \
+        f'replay took {span:.3f} s for {expected[-1]:.3f} s of bag at rate {rate}'
+    if rate > 1:
+        # Faster than real time, the in-process listener (Python, same GIL as the player) is the
+        # bottleneck at 4 kHz: its arrival times measure itself, not the replay.
+        return
+    # arrival at a subscriber follows the recorded offsets
     lag = arrival - expected
     lag -= np.median(lag)  # the offset between the two clocks; what is left is timing error
     assert np.median(np.abs(lag)) < 0.01, f'median timing error {np.median(np.abs(lag)) * 1e3:.1f} ms'
@@ -109,9 +119,6 @@ def test_replay_delivers_every_message_with_its_timing(ros_context, sweep_bag, r
     assert np.percentile(np.abs(lag), 90) < 0.05, \
         f'90th percentile timing error {np.percentile(np.abs(lag), 90) * 1e3:.1f} ms'
     assert np.max(np.abs(lag)) < 0.5, f'a message was {np.max(np.abs(lag)):.3f} s off its time'
-    span = arrival[-1] - arrival[0]
-    assert abs(span - expected[-1]) < 0.25, \
-        f'replay took {span:.3f} s for {expected[-1]:.3f} s of bag at rate {rate}'
 
 
 def test_restamp_moves_header_stamps_to_the_replay_time_and_keeps_their_spacing(

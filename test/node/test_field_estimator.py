@@ -7,7 +7,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from wind_shaper_msgs.msg import FieldEstimate  # noqa: E402
@@ -69,7 +69,7 @@ class Harness:
         self.estimate = self.peer.create_client(EstimateField, names.ESTIMATE_FIELD)
         self.fields = []
         self.peer.create_subscription(FieldEstimate, names.FIELD, self.fields.append, qos.LATCHED)
-        self.executor = MultiThreadedExecutor(num_threads=3, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.peer)
         self.stop = threading.Event()

@@ -12,7 +12,7 @@ rclpy = pytest.importorskip('rclpy')
 from builtin_interfaces.msg import Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 from wind_shaper.core.errors import ConfigError  # noqa: E402
@@ -51,7 +51,7 @@ def pose(t, xyz, q=(0.0, 0.0, 0.0, 1.0), frame='mocap'):
 @pytest.fixture
 def relay(ros_context):
     """(node, send(msg), received list, diag() -> next diagnostics values)."""
-    executor = MultiThreadedExecutor(num_threads=2, context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
     client = rclpy.create_node('mocap_relay_test_client', context=ros_context)
     node = MocapRelayNode(context=ros_context, parameter_overrides=[
         Parameter(k, value=v) for k, v in CALIBRATION.items()])

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from wind_shaper_msgs.srv import Sweep  # noqa: E402
 
@@ -70,7 +70,7 @@ class Harness:
                                         qos.STREAM)
         self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
                                         self.diagnostics.append, 10)
-        self.executor = MultiThreadedExecutor(num_threads=3, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)

@@ -67,16 +67,31 @@ def shift_header_stamp(raw: bytes, offset_ns: int) -> bytes:
 @dataclass
 class PlayStats:
     """What a replay did: messages published per topic, passes over the bag, the wall time it
-    took [s], and the largest lateness of a publish behind its schedule [s]."""
+    took [s], and how late each publish was behind its schedule [s] (the first LATE_KEPT)."""
+
+    LATE_KEPT = 200_000  # lateness samples kept for the percentiles (a looped replay goes on)
 
     published: dict[str, int] = field(default_factory=dict)
     passes: int = 0
     wall_s: float = 0.0
     max_late_s: float = 0.0
+    late_s: list[float] = field(default_factory=list, repr=False)
 
     @property
     def total(self) -> int:
         return sum(self.published.values())
+
+    def record_late(self, late_s: float) -> None:
+        self.max_late_s = max(self.max_late_s, late_s)
+        if len(self.late_s) < self.LATE_KEPT:
+            self.late_s.append(late_s)
+
+    def late_percentile(self, q: float) -> float:
+        """The q-th percentile [0, 100] of publish lateness [s]; 0 before any publish."""
+        if not self.late_s:
+            return 0.0
+        ordered = sorted(self.late_s)
+        return ordered[min(int(round(q / 100 * (len(ordered) - 1))), len(ordered) - 1)]
 
 
 class Player:
@@ -184,7 +199,7 @@ class Player:
                     raw = shift_header_stamp(raw, offset_ns)
                 self._publishers[topic].publish(bytes(raw))
                 stats.published[topic] += 1
-                stats.max_late_s = max(stats.max_late_s, (time.monotonic_ns() - due) * 1e-9)
+                stats.record_late((time.monotonic_ns() - due) * 1e-9)
 
     def _flush(self, timeout_s: float = 2.0) -> None:
         """Give reliable subscribers up to timeout_s [s] to acknowledge what was published."""

@@ -69,7 +69,8 @@ def _cmd_replay(args) -> int:
             player.destroy()
         rclpy.try_shutdown()
     print(f'published {stats.total} messages in {stats.passes} pass(es), {stats.wall_s:.2f} s '
-          f'(latest publish {1e3 * stats.max_late_s:.1f} ms behind schedule)')
+          f'(behind schedule: median {1e3 * stats.late_percentile(50):.1f} ms, 90th percentile '
+          f'{1e3 * stats.late_percentile(90):.1f} ms, latest {1e3 * stats.max_late_s:.1f} ms)')
     return 0
 
 

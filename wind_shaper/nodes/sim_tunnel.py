@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.task import Future
 from wind_shaper_msgs.srv import Sweep
 
 from ..app import Setup
@@ -169,8 +170,10 @@ class SimTunnel(Node):
 
         self._pose_pub = self.create_publisher(PoseStamped, p.mocap_topic, qos.STREAM)
         self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
-        self.create_service(Sweep, names.SWEEP, self._handle_sweep,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+        # Reentrant: the sweep coroutine awaits a timer, which a mutually exclusive group would
+        # hold back until the coroutine ended. LiveTunnel refuses a second sweep while one runs.
+        self._sweep_group = ReentrantCallbackGroup()
+        self.create_service(Sweep, names.SWEEP, self._handle_sweep, callback_group=self._sweep_group)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self._mocap_thread = threading.Thread(target=self._mocap_loop, name='sim-mocap', daemon=True)
         self._mocap_thread.start()
@@ -250,7 +253,7 @@ class SimTunnel(Node):
         self.mocap_published += 1
 
     # ------------------------------------------------------------------ services
-    def _handle_sweep(self, request: Sweep.Request, response: Sweep.Response) -> Sweep.Response:
+    async def _handle_sweep(self, request: Sweep.Request, response: Sweep.Response) -> Sweep.Response:
         limit = self.params.max_sweep_duration_s
         if not 0 < request.duration_s <= limit:
             response.success = False
@@ -265,11 +268,15 @@ class SimTunnel(Node):
             response.message = str(exc)
             return response
         self.get_logger().info(f'sweep of {request.duration_s:g} s started')
-        while not self._stop.is_set():
-            left = motion.end - time.monotonic()
-            if left <= 0:
-                break
-            self._stop.wait(min(left, 0.05))
+        # A coroutine, so the executor's one thread serves diagnostics while the plate moves.
+        ended = Future()
+        timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
+                                  lambda: ended.done() or ended.set_result(True),
+                                  callback_group=self._sweep_group)
+        try:
+            await ended
+        finally:
+            self.destroy_timer(timer)
         response.duration_s = time.monotonic() - t_start
         if self._stop.is_set():
             self.live.stop_sweep()
