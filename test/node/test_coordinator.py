@@ -510,6 +510,20 @@ def test_cli_iterate_status_and_cancel(graph, capsys, paper_config):
     assert graph.store().last_completed() == 1
 
 
+def test_cli_set_model_swaps_the_prior_and_keeps_it_on_a_bad_file(graph, capsys, setup, tmp_path):
+    node = graph.start_coordinator()
+    model = setup.load_model()
+    path = save_model(tmp_path / 'wider.yaml', model.k1.clone(sigma=0.2) + model.k2)
+    assert cli(['set-model', str(path)]) == 0
+    assert 'now uses' in capsys.readouterr().out and 'sigma=0.2' in repr(node._model)
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('wind_shaper_model: 1\nmodel: {kind: nope}\n')
+    assert cli(['set-model', str(broken)]) == 1
+    assert 'the old one stays' in capsys.readouterr().err and 'sigma=0.2' in repr(node._model)
+    assert cli(['set-model', str(tmp_path / 'missing.yaml')]) == 2
+    assert 'cannot read the model file' in capsys.readouterr().err
+
+
 def test_cli_without_a_coordinator_says_how_to_start_one(ros_env, capsys):
     t0 = time.monotonic()
     assert cli(['iterate', '--wait', '0.5']) == 2

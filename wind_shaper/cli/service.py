@@ -4,6 +4,7 @@
     wind-shaper iterate --target uniform:2.5     # change the run's target, then iterate
     wind-shaper status                           # the coordinator's latest status, then exit
     wind-shaper cancel                           # stop the running iteration at its next step
+    wind-shaper set-model improved.yaml          # swap the coordinator's prior, no restart
 
 Each command is a short-lived ROS node; every wait is bounded. rclpy is imported inside the
 command functions, so `wind-shaper --help` and the in-process commands work without ROS.
@@ -218,6 +219,31 @@ def _cmd_cancel(args) -> int:
         return 0 if answer.success else 1
 
 
+def _cmd_set_model(args) -> int:
+    from wind_shaper_msgs.srv import SetModel
+    try:
+        text = open(args.model, encoding='utf-8').read()
+    except OSError as exc:
+        print(f'cannot read the model file {args.model}: {exc.strerror}; give the path of a model '
+              f'file (as written by `wind-shaper model add --save` or `wind-shaper calibrate`)',
+              file=sys.stderr)
+        return 2
+    with _Session() as session:
+        client = session.node.create_client(SetModel, names.SET_MODEL)
+        if not session.wait_for_service(client, args.wait):
+            return _not_running(names.SET_MODEL, args.wait)
+        # the text, not the path: the coordinator may run on another machine
+        answer = session.call(client, SetModel.Request(model_yaml=text), args.wait)
+        if answer is None:
+            print(f'the coordinator did not answer within {args.wait:g} s', file=sys.stderr)
+            return 2
+        if not answer.success:
+            print(f'model refused, the old one stays: {answer.message}', file=sys.stderr)
+            return 1
+        print(f'the coordinator now uses {args.model}: {answer.message}')
+        return 0
+
+
 def _wait_arg(p) -> None:
     p.add_argument('--wait', type=float, default=5.0, metavar='S',
                    help='how long to wait for the coordinator to answer [s] (default 5)')
@@ -257,6 +283,16 @@ def register(subparsers) -> None:
                f'std_srvs/srv/Trigger')
     _wait_arg(p)
     p.set_defaults(func=_cmd_cancel)
+
+    p = subparsers.add_parser(
+        'set-model', help='swap the running coordinator\'s prior model for a model file, '
+                          'without a restart (from the next iteration on)',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f'On a full ROS 2 install: ros2 service call {names.SET_MODEL} '
+               f'wind_shaper_msgs/srv/SetModel "{{path: /abs/path/improved.yaml}}"')
+    p.add_argument('model', help='a model file (YAML), e.g. from `wind-shaper model add --save`')
+    _wait_arg(p)
+    p.set_defaults(func=_cmd_set_model)
 
 
 __all__ = ['register', 'format_result', 'format_status', 'ROS2_EQUIVALENT']
