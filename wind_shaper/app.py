@@ -15,6 +15,7 @@ from .core.geometry import TunnelGeometry
 from .core.loop import IterationRecord, ShapingLoop
 from .core.model import Term, paper_prior
 from .core.modelfile import load_model, save_model
+from .core.reach import check_reachable
 from .core.targets import Target, make_target
 
 
@@ -56,10 +57,17 @@ class Setup:
     def load_model(self, path=None) -> Term:
         return load_model(path or self.model_path, self.geometry.fans)
 
-    def make_target(self, spec) -> Target:
+    def make_target(self, spec, model: Term | None = None) -> Target:
+        """The target of ``spec``; with a ``model``, one the fans can plainly not deliver (per the
+        model, within the command bounds) is refused with a TargetError (core.reach)."""
         fans = self.geometry.fans
-        return make_target(spec, fan_positions=fans.positions, fan_names=list(fans.names),
-                           key_points=self.geometry.key_points)
+        target = make_target(spec, fan_positions=fans.positions, fan_names=list(fans.names),
+                             key_points=self.geometry.key_points)
+        if model is not None:
+            kp = self.geometry.key_points
+            check_reachable(target.values(kp), kp, model, self.shaping.u_min, self.shaping.u_max,
+                            fans.enabled, what=f'target {target.describe()!r}')
+        return target
 
 
 def calibrate(tunnel, fans, plan: CalibrationPlan = CalibrationPlan()) -> ModelFit:
@@ -81,10 +89,11 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
                  sim=None) -> tuple[list[IterationRecord], Target]:
     """Run Algorithm 1 in-process on the simulated tunnel, scored against its true field."""
     sim = sim or setup.make_sim(seed=seed)
-    target = setup.make_target(target_spec)
+    model = model or setup.load_model()
+    target = setup.make_target(target_spec, model=model)
     kp = setup.geometry.key_points
     rule = setup.shaping.make_rule(**(rule_overrides or {}))
-    loop = ShapingLoop(sim, model or setup.load_model(), target.values(kp), rule,
+    loop = ShapingLoop(sim, model, target.values(kp), rule,
                        setup.shaping.make_estimator(),
                        u0=setup.shaping.u0 if u0 is None else u0,
                        n_samples=setup.shaping.samples_per_sweep,

@@ -345,6 +345,9 @@ def test_a_bad_target_is_refused_and_nothing_changes(graph):
     assert not r.success and 'NOPE' in r.message and 'nothing changed' in r.message
     assert graph.store().state().target == 'parabolic' and graph.store().last_completed() == -1
     assert graph.rig.commands == []  # nothing was commanded
+    r = graph.iterate(target='uniform:40')   # far beyond the fans, per the prior
+    assert not r.success and 'cannot reach' in r.message and 'nothing changed' in r.message
+    assert graph.store().state().target == 'parabolic' and graph.rig.commands == []
     r = graph.iterate(step_gain=-1.0, target='uniform:2.0')
     assert r.success, r.message
     assert graph.store().state().target == 'uniform:2.0'

@@ -109,7 +109,8 @@ class CoordinatorNode(Node):
         self._enabled = geo.fans.enabled
         self._key_points = geo.key_points
         self._bounds = setup.shaping.bounds
-        setup.make_target(p.target)  # a bad target parameter stops the node at start
+        setup.make_target(p.target)  # a bad target parameter stops the node at start (its
+        # reach is checked against the run's prior below)
         u0 = self._bounds.project(np.full(len(self._fan_names), float(setup.shaping.u0)),
                                   self._enabled)
         info = RunInfo(p.target, tuple(self._fan_names), self._key_points,
@@ -124,7 +125,7 @@ class CoordinatorNode(Node):
         else:
             self._model = setup.load_model()
         self._target_spec = state.target
-        self._target = setup.make_target(state.target)
+        self._target = setup.make_target(state.target, model=self._model)
         if state.target != p.target:
             self.get_logger().warning(
                 f'the run {self._store.folder} has target {state.target!r}; the target parameter '
@@ -353,7 +354,7 @@ class CoordinatorNode(Node):
                                     f'for it or call {names.CANCEL_ITERATION}')
                 return response
             try:
-                target = self._setup.make_target(spec) if spec else None
+                target = self._setup.make_target(spec, model=self._model) if spec else None
                 rule = self._setup.shaping.make_rule(
                     **({'gain': float(request.step_gain)} if request.step_gain > 0 else {}))
             except WindShaperError as exc:
