@@ -71,7 +71,8 @@ def ros_context(ros_env):
 def ros_process(ros_env, tmp_path):
     """Start a Python script as a separate ROS process: ``start(script, *args) -> Popen``.
 
-    The child gets the test's ROS environment and no stdin; its output goes to
+    The child gets the test's ROS environment, no stdin and the test's tmp_path as working
+    directory (so relative defaults such as runs/ land there); its output goes to
     ``process.log_path``. Every child still running at teardown is stopped.
     """
     started = []
@@ -82,7 +83,7 @@ def ros_process(ros_env, tmp_path):
         with open(log_path, 'wb') as log:
             process = subprocess.Popen(
                 [sys.executable, str(script), *map(str, args)],
-                env=ros_env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                env=ros_env, cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                 start_new_session=True)  # a Ctrl-C in the terminal goes to pytest only
         process.log_path = log_path
         started.append(process)

@@ -483,7 +483,8 @@ def test_iteration_timeout_from_the_request(graph):
 def test_one_iteration_with_the_real_field_estimator(ros_context, setup, tmp_path):
     g = Graph(ros_context, setup, tmp_path, estimator=False, stream=True)
     try:
-        g.rig.sink = g.add_node(FieldEstimatorNode(context=ros_context))
+        g.rig.sink = g.add_node(FieldEstimatorNode(context=ros_context, parameter_overrides=[
+            Parameter("journal_dir", value=str(tmp_path / "journal"))]))
         g.start_coordinator(sweep_duration_s=1.0)
         r = g.iterate()
         assert r.success, r.message

@@ -15,6 +15,7 @@ from wind_shaper_msgs.srv import EstimateField  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.core.align import align_sweep  # noqa: E402
+from wind_shaper.core.journal import load_sweep_samples  # noqa: E402
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 from wind_shaper.ros.convert import estimate_from_msg, seconds_to_stamp, sweep_from_msg  # noqa: E402
@@ -60,8 +61,9 @@ def sweep_streams(sim, n_poses=400, t_start=1000.0, half_disc=False, seed=0):
 class Harness:
     """The node under test and a helper node (publishers, clients) on one spinning executor."""
 
-    def __init__(self, context, overrides=()):
-        self.node = FieldEstimatorNode(context=context, parameter_overrides=list(overrides))
+    def __init__(self, context, journal_dir, overrides=()):
+        self.node = FieldEstimatorNode(context=context, parameter_overrides=[
+            Parameter('journal_dir', value=str(journal_dir)), *overrides])
         self.peer = rclpy.create_node('field_estimator_test_peer', context=context)
         self.force_pub = self.peer.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
         self.pose_pub = self.peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
@@ -141,8 +143,8 @@ def wait_until(predicate, timeout=WAIT_S, period=0.005):
 
 
 @pytest.fixture
-def harness(ros_context):
-    h = Harness(ros_context)
+def harness(ros_context, tmp_path):
+    h = Harness(ros_context, tmp_path / 'journal')
     yield h
     h.close()
 
@@ -203,6 +205,40 @@ def test_collection_stops_at_estimate_and_restarts_at_begin(harness, sim):
         assert np.all(buffer.arrays()[0] >= 2000.0)
 
 
+def test_every_sample_is_journaled_and_a_new_node_takes_an_unfinished_sweep_back(
+        ros_context, tmp_path, sim, setup):
+    journal_dir = tmp_path / 'journal'
+    streams = sweep_streams(sim, seed=4)
+    force_t, force, pose_t, pose_xy = streams
+    first = Harness(ros_context, journal_dir)
+    try:
+        assert first.begin_sweep().success
+        half_force, half_pose = len(force_t) // 2, len(pose_t) // 2
+        first.publish(force_t[:half_force], force[:half_force], pose_t[:half_pose],
+                      pose_xy[:half_pose])
+        (folder,) = [p.parent for p in journal_dir.glob('sweep-*/OPEN')]
+        on_disk_force, on_disk_pose = load_sweep_samples(folder)
+        np.testing.assert_array_equal(on_disk_force[:, 0], force_t[:half_force])
+        np.testing.assert_array_equal(on_disk_pose[:, 1:], pose_xy[:half_pose])
+    finally:
+        first.close()                               # the node goes away mid-sweep
+    second = Harness(ros_context, journal_dir)       # ... and a new one starts
+    try:
+        assert second.node._collecting and len(second.node._force) == half_force
+        second.publish(force_t[half_force:], force[half_force:], pose_t[half_pose:],
+                       pose_xy[half_pose:], expect_buffered=False)
+        assert wait_until(lambda: len(second.node._force) == len(force_t)
+                          and len(second.node._pose) == len(pose_t))
+        resp = second.estimate_field()
+        assert resp.success, resp.message
+        expected = align_sweep(force_t, force, pose_t, pose_xy[:, 0], pose_xy[:, 1], U)
+        np.testing.assert_array_equal(sweep_from_msg(resp.samples).positions, expected.positions)
+        assert (folder / 'outcome').read_text() == 'estimated\n'
+        assert len(load_sweep_samples(folder)[0]) == len(force_t)
+    finally:
+        second.close()
+
+
 def test_estimate_without_a_sweep_says_to_begin_one(harness):
     resp = harness.estimate_field()
     assert not resp.success and 'call begin_sweep' in resp.message
@@ -246,8 +282,8 @@ def test_a_request_for_other_fans_is_refused(harness, sim):
     assert not resp.success and 'one per fan' in resp.message
 
 
-def test_buffers_keep_only_max_buffer_s(ros_context, sim):
-    h = Harness(ros_context, [Parameter('max_buffer_s', value=2.0)])
+def test_buffers_keep_only_max_buffer_s(ros_context, sim, tmp_path):
+    h = Harness(ros_context, tmp_path / 'journal', [Parameter('max_buffer_s', value=2.0)])
     try:
         h.begin_sweep()
         force_t, force, pose_t, pose_xy = sweep_streams(sim, seed=7)  # 4 s of stamps

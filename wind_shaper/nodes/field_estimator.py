@@ -12,6 +12,11 @@ and returns it with the raw pairs (``SweepSamples``). An estimate that fails (no
 out of step, poor coverage) answers ``success: false`` with the reason and changes nothing: the
 buffers are kept and collection goes on if it was on, so the plate can sweep on and the
 coordinator can ask again. /diagnostics at 1 Hz.
+
+Every sample collected is also appended to the sweep journal (``journal_dir``,
+``wind_shaper.core.journal``) as it arrives. A field_estimator killed during a sweep and started
+again takes the unfinished sweep back from the journal and goes on collecting, so the samples
+recorded before the kill are all in the estimate.
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from wind_shaper_msgs.srv import EstimateField
 from ..app import Setup
 from ..core.align import SampleBuffer, align_sweep
 from ..core.errors import WindShaperError
+from ..core.journal import SweepJournal
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_to_msg, seconds_to_stamp, stamp_to_seconds, sweep_to_msg
@@ -48,6 +54,10 @@ class FieldEstimatorParams:
                             '[m, tunnel frame], stamped at capture')
     max_buffer_s: float = param(300.0, 'longest sweep kept in the buffers; older samples are '
                                 'dropped [s]', low=1.0, high=3600.0)
+    journal_dir: str = param('runs/journal', "folder of the sweep journal: every collected sample "
+                             "on disk as it arrives, reloaded after a crash ('' = off; relative: "
+                             'to the working directory)')
+    journal_keep: int = param(20, 'closed sweeps kept in the journal', low=1, high=100000)
 
 
 class FieldEstimatorNode(Node):
@@ -68,6 +78,15 @@ class FieldEstimatorNode(Node):
         self._last = 'no estimate yet'
         self._last_ok = True
         self._estimates = 0
+        self._journal = SweepJournal(p.journal_dir, p.journal_keep) if p.journal_dir else None
+        resumed = self._journal.reopen() if self._journal is not None else None
+        if resumed is not None:
+            # a crash (or kill) during collection: take the sweep back and go on collecting
+            for t, fz in resumed[0]:
+                self._force.append(float(t), float(fz))
+            for t, x, y in resumed[1]:
+                self._pose.append(float(t), float(x), float(y))
+            self._collecting, self._began_at = True, time.monotonic()
 
         streams = MutuallyExclusiveCallbackGroup()
         poses = MutuallyExclusiveCallbackGroup()
@@ -85,27 +104,41 @@ class FieldEstimatorNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'{len(self._key_points)} key points, estimator {self._estimator}; '
-            f'force {p.force_topic}, pose {p.pose_topic}')
+            f'force {p.force_topic}, pose {p.pose_topic}; journal '
+            f'{self._journal.root if self._journal else "off"}')
+        if resumed is not None:
+            self.get_logger().warning(
+                f'resumed collecting the unfinished sweep {self._journal.folder.name} from the '
+                f'journal: {len(resumed[0])} force and {len(resumed[1])} pose samples')
 
     # -- streams --------------------------------------------------------------------------------------
     def _on_force(self, msg: WrenchStamped) -> None:
         if self._collecting:
-            self._force.append(stamp_to_seconds(msg.header.stamp), msg.wrench.force.z)
+            t, fz = stamp_to_seconds(msg.header.stamp), msg.wrench.force.z
+            if self._journal is not None:
+                self._journal.append_force(t, fz)
+            self._force.append(t, fz)
 
     def _on_plate_pose(self, msg: PoseStamped) -> None:
         if self._collecting:
             pos = msg.pose.position
-            self._pose.append(stamp_to_seconds(msg.header.stamp), pos.x, pos.y)
+            t = stamp_to_seconds(msg.header.stamp)
+            if self._journal is not None:
+                self._journal.append_pose(t, pos.x, pos.y)
+            self._pose.append(t, pos.x, pos.y)
 
     # -- services -------------------------------------------------------------------------------------
     def _handle_begin_sweep(self, request: Trigger.Request, response: Trigger.Response):
         with self._lock:
             self._force.clear()
             self._pose.clear()
+            if self._journal is not None:
+                folder = self._journal.begin()   # an unfinished sweep before it: 'abandoned'
             self._collecting = True
             self._began_at = time.monotonic()
         response.success = True
-        response.message = 'collecting force and plate pose: move the plate, then call estimate'
+        response.message = 'collecting force and plate pose: move the plate, then call estimate' + (
+            f' (journal: {folder})' if self._journal is not None else '')
         return response
 
     def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
@@ -141,6 +174,8 @@ class FieldEstimatorNode(Node):
         response.samples = sweep_to_msg(sweep, request.iteration, names_,
                                         stamp=seconds_to_stamp(t_start))
         self._field_pub.publish(response.estimate)
+        if self._journal is not None:
+            self._journal.close('estimated')
         duration = float(sweep.times[-1] - sweep.times[0]) if len(sweep) > 1 else 0.0
         rates = ''
         if duration > 0:
@@ -166,6 +201,11 @@ class FieldEstimatorNode(Node):
                                   f'must read the same config_dir')
         return np.asarray(request.pwm, dtype=float)
 
+    def destroy_node(self):
+        if self._journal is not None:
+            self._journal.shutdown()   # an open sweep stays open: a restart takes it back
+        super().destroy_node()
+
     # -- diagnostics ----------------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         state = 'collecting' if self._collecting else 'idle'
@@ -174,6 +214,8 @@ class FieldEstimatorNode(Node):
                   'last_estimate': self._last}
         if self._collecting and self._began_at is not None:
             values['collecting_for_s'] = round(time.monotonic() - self._began_at, 1)
+        if self._journal is not None and self._journal.folder is not None:
+            values['journal'] = str(self._journal.folder)
         self._diag_pub.publish(diag.array(self, diag.status(
             f'wind_shaper/{names.FIELD_ESTIMATOR}', diag.OK if self._last_ok else diag.WARN,
             f'{state}; {self._last}', values)))
