@@ -55,9 +55,11 @@ def setup():
 class FakeRig(Node):
     """Fan driver + sweep + (optionally) field estimator, backed by a SimulatedTunnel.
 
-    echo: publish every FanCommand back on /fans/applied (as the plant applied it);
+    echo: publish every FanCommand back on /fans/applied (as the plant applied it), from a node
+    of its own (``fans``) so the read-back goes on while a sweep call blocks this one;
     estimator: serve begin_sweep / estimate from simulator sweeps; stream: during a sweep,
-    publish force and plate pose from the simulator for the real field_estimator node."""
+    publish force and plate pose from the simulator for the real field_estimator node.
+    During a sweep, ``fault`` makes the read-back go 'silent' or report fan 0 'off' (stopped)."""
 
     def __init__(self, context, setup, *, echo=True, estimator=True, stream=False, seed=0):
         super().__init__('fake_rig', context=context)
@@ -70,9 +72,14 @@ class FakeRig(Node):
         self.sweeps = 0
         self.refuse_estimates = 0
         self.stop = threading.Event()
+        self.sweeping = False
+        self.fault = None
         self.estimator = setup.shaping.make_estimator()
-        self.applied_pub = self.create_publisher(FanCommand, names.FAN_APPLIED, qos.LATCHED)
-        self.create_subscription(FanCommand, names.FAN_COMMAND, self._on_fans_command, qos.COMMAND)
+        self.fans_node = rclpy.create_node('fake_rig_fans', context=context)
+        self.applied_pub = self.fans_node.create_publisher(FanCommand, names.FAN_APPLIED,
+                                                           qos.LATCHED)
+        self.fans_node.create_subscription(FanCommand, names.FAN_COMMAND, self._on_fans_command,
+                                           qos.COMMAND)
         self.create_service(Sweep, names.SWEEP, self._handle_sweep)
         if estimator:
             self.create_service(Trigger, names.BEGIN_SWEEP, self._handle_begin_sweep)
@@ -85,11 +92,23 @@ class FakeRig(Node):
         pwm = pwm_from_command(msg, self.fans)
         self.commands.append(pwm)
         applied = self.sim.apply(pwm)
+        if self.sweeping and self.fault == 'silent':
+            return
+        if self.sweeping and self.fault == 'off':
+            applied = np.array(applied, dtype=float)
+            applied[0] = 0.0
         if self.echo:
             self.applied_pub.publish(fan_command(self.fans, applied))
 
     def _handle_sweep(self, request, response):
         self.sweeps += 1
+        self.sweeping = True
+        try:
+            return self._sweep(request, response)
+        finally:
+            self.sweeping = False
+
+    def _sweep(self, request, response):
         if self.stream:
             self._stream_sweep(request.duration_s)
         else:
@@ -183,6 +202,7 @@ class Graph:
         self.context, self.setup, self.run_root = context, setup, run_root
         self.spun = []
         self.rig = self._spin(FakeRig(context, setup, **rig))
+        self._spin(self.rig.fans_node)
         self.client = rclpy.create_node('coordinator_test_client', context=context)
         self.statuses = []
         self.client.create_subscription(IterationStatus, names.STATUS, self.statuses.append,
@@ -447,6 +467,20 @@ def test_update_rules_see_the_runs_history_across_restarts(graph, monkeypatch):
         np.testing.assert_array_equal(past.U, r.pwm_before)
     np.testing.assert_allclose(seen[2].history[1].mean, seen[1].target - seen[1].delta, atol=1e-12)
     assert seen[2].model is not None and seen[2].key_points.shape == (317, 2)
+
+
+@pytest.mark.parametrize('fault, words', [('off', 'reported LM1 at 0.000 instead of 0.500'),
+                                          ('silent', 'did not report their outputs')])
+def test_a_sweep_during_which_the_fans_leave_their_commands_is_discarded(graph, fault, words):
+    graph.start_coordinator(sweep_duration_s=3.0)
+    graph.rig.fault = fault
+    r = graph.iterate()
+    assert not r.success and 'sweep discarded' in r.message and words in r.message, r.message
+    assert graph.store().last_completed() == -1           # the run stays where it was
+    assert graph.status().state == IterationStatus.STATE_FAILED
+    graph.rig.fault = None
+    r = graph.iterate()
+    assert r.success and r.iteration == 0, r.message
 
 
 def test_operator_sweep_waits_the_sweep_duration(graph):

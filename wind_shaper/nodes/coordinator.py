@@ -77,6 +77,9 @@ class CoordinatorParams:
                                    'that counts as applied [fraction]', low=0.0, high=1.0)
     apply_timeout_s: float = param(10.0, 'wait at most this long for the fans to report the '
                                    'commands [s]', low=0.1, high=600.0)
+    readback_timeout_s: float = param(2.0, 'during a sweep the fans\' read-back may pause this '
+                                      'long at most [s]; a longer pause, or a read-back off the '
+                                      'commands, discards the sweep', low=0.1, high=600.0)
     max_sweeps: int = param(3, 'sweeps per iteration at most: when the estimator refuses a '
                             'sweep (gaps, too few samples) the plate sweeps again and the '
                             'estimate uses all samples', low=1, high=10)
@@ -95,6 +98,36 @@ class _Stop(Exception):
     def __init__(self, state: str, message: str):
         super().__init__(message)
         self.state = state
+
+
+class _FanWatch:
+    """The fans' read-back during one sweep: the longest pause between reports [s] and the
+    first report off the commands U [fraction] by more than ``tolerance``."""
+
+    def __init__(self, start: float, U, tolerance: float):
+        self.U, self.tolerance = np.asarray(U, dtype=float), float(tolerance)
+        self.start = self.last = start
+        self.longest_pause = 0.0
+        self.off: tuple[float, np.ndarray] | None = None
+
+    def saw(self, now: float, applied: np.ndarray) -> None:
+        self.longest_pause = max(self.longest_pause, now - self.last)
+        self.last = now
+        if self.off is None and np.max(np.abs(applied - self.U)) > self.tolerance:
+            self.off = (now - self.start, applied.copy())
+
+    def problem(self, now: float, timeout_s: float, fan_names) -> str:
+        """Why the sweep cannot be trusted, or ''."""
+        if self.off is not None:
+            t, applied = self.off
+            worst = int(np.argmax(np.abs(applied - self.U)))
+            return (f'{t:.1f} s into the sweep the fans reported {fan_names[worst]} at '
+                    f'{applied[worst]:.3f} instead of {self.U[worst]:.3f}')
+        pause = max(self.longest_pause, now - self.last)
+        if pause > timeout_s:
+            return (f'the fans did not report their outputs for {pause:.1f} s during the sweep '
+                    f'(readback_timeout_s {timeout_s:g})')
+        return ''
 
 
 class CoordinatorNode(Node):
@@ -160,6 +193,7 @@ class CoordinatorNode(Node):
         # the commands in force: none until the first iteration of a new run; a resumed run
         # holds the last completed iteration's next commands at once
         self._command: np.ndarray | None = self._U.copy() if last >= 0 else None
+        self._fan_watch: _FanWatch | None = None
 
         self._cb = ReentrantCallbackGroup()
         self._cmd_pub = self.create_publisher(FanCommand, names.FAN_COMMAND, qos.LATCHED)
@@ -198,6 +232,9 @@ class CoordinatorNode(Node):
             self.get_logger().warning(f'ignoring {names.FAN_APPLIED}: {exc}', throttle_duration_sec=10)
             return
         self._applied = applied
+        watch = self._fan_watch
+        if watch is not None:
+            watch.saw(time.monotonic(), applied)
         hook = self._applied_hook
         if hook is not None:
             hook()
@@ -479,7 +516,22 @@ class CoordinatorNode(Node):
         return response
 
     async def _sweep_once(self, k: int, attempt: int, deadline: float) -> None:
-        """Move the plate once (sweep service) or give an operator the sweep's duration."""
+        """Move the plate once (sweep service) or give an operator the sweep's duration; a sweep
+        during which the fans left their commands (or stopped reporting) is refused (_Stop)."""
+        self._fan_watch = watch = _FanWatch(time.monotonic(), self._command,
+                                            self.params.apply_tolerance)
+        try:
+            await self._move_plate(k, attempt, deadline)
+        finally:
+            self._fan_watch = None
+        problem = watch.problem(time.monotonic(), self.params.readback_timeout_s, self._fan_names)
+        if problem:
+            raise _Stop(IterationStatus.STATE_FAILED,
+                        f'sweep discarded: {problem} (fan_output restarted, the autopilot link '
+                        f'dropped, or an emergency stop?); the run stays at iteration {k}: check '
+                        f'the fans, then call {names.RUN_ITERATION} again')
+
+    async def _move_plate(self, k: int, attempt: int, deadline: float) -> None:
         p = self.params
         again = '' if attempt == 1 else f' (sweep {attempt} of {p.max_sweeps})'
         if self._sweep_client is not None:
