@@ -92,3 +92,26 @@ def ros_process(ros_env, tmp_path):
     yield start
     for process in started:
         _stop(process)
+
+
+# -- the fault table (tools/fault_table.py) ----------------------------------------------------
+_FAULT_ROWS: list = []
+
+
+@pytest.fixture
+def fault_row(request):
+    """``fault_row(fault, outcome, survived, samples_lost)``: one row of the fault table, kept
+    for the run and written to $WIND_SHAPER_FAULT_TABLE (JSON lines) when that is set."""
+    def record(fault: str, outcome: str, survived: bool, samples_lost: int) -> None:
+        _FAULT_ROWS.append({'fault': fault, 'outcome': outcome, 'survived': bool(survived),
+                            'samples_lost': int(samples_lost), 'test': request.node.nodeid})
+    return record
+
+
+def pytest_sessionfinish(session, exitstatus):
+    path = os.environ.get('WIND_SHAPER_FAULT_TABLE')
+    if path and _FAULT_ROWS:
+        import json
+        with open(path, 'a', encoding='utf-8') as fh:
+            for row in _FAULT_ROWS:
+                fh.write(json.dumps(row) + '\n')

@@ -374,9 +374,10 @@ class Supervisor:
             if child.restart_at is not None:
                 if now >= child.restart_at:
                     child.restarts += 1
-                    self.say(f'wind-shaper up: restarting {name} '
-                             f'({child.restarts} of {self.policy.max_restarts})')
                     self._spawn(child)
+                    self.say(f'wind-shaper up: restarting {name} '
+                             f'({child.restarts} of {self.policy.max_restarts}): pid '
+                             f'{child.process.pid}')
                 continue
             code = child.process.poll()
             if code is None or child.exit_code is not None:

@@ -4,110 +4,12 @@ import json
 import os
 import re
 import signal
-import subprocess
-import sys
-import threading
 import time
-from pathlib import Path
 
 import pytest
+from up_driver import NODES, UP_LINE, alive, children_of, node_pids
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-NODES = ('sim_tunnel', 'fan_output', 'force_sensor', 'mocap_relay', 'field_estimator',
-         'coordinator')
-UP_LINE = re.compile(r'all (\d+) nodes are up in ([\d.]+) s \(pids: (.*)\)')
-
-
-def alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    state = Path(f'/proc/{pid}/stat').read_text().split(')')[1].split()[0]
-    return state != 'Z'
-
-
-def children_of(pid):
-    """PIDs whose parent is ``pid`` (from /proc)."""
-    out = []
-    for entry in Path('/proc').iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / 'stat').read_text().split(')')[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(entry.name))
-    return out
-
-
-class Up:
-    """``wind-shaper up`` in a subprocess, its output collected line by line."""
-
-    def __init__(self, env, cwd, *args):
-        missing = [n for n in NODES if not (Path(__file__).resolve().parents[2] / 'wind_shaper'
-                                             / 'nodes' / f'{n}.py').is_file()]
-        assert not missing, f'node modules missing: {missing}'
-        self.process = subprocess.Popen(
-            [sys.executable, '-m', 'wind_shaper.cli.main', 'up', '--sim', *args], cwd=cwd,
-            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, start_new_session=True)
-        self.lines = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self):
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip('\n'))
-
-    def output(self):
-        return '\n'.join(self.lines)
-
-    def wait_line(self, pattern, timeout_s):
-        regex = re.compile(pattern)
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            for line in list(self.lines):
-                m = regex.search(line)
-                if m:
-                    return m
-            if self.process.poll() is not None and not self._reader.is_alive():
-                break
-            time.sleep(0.1)
-        pytest.fail(f'no line matching {pattern!r} within {timeout_s} s; output:\n'
-                    f'{self.output()[-6000:]}')
-
-    def wait(self, timeout_s):
-        try:
-            code = self.process.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f'wind-shaper up did not end within {timeout_s} s; output:\n'
-                        f'{self.output()[-6000:]}')
-        self._reader.join(5.0)
-        return code
-
-    def kill(self):
-        if self.process.poll() is None:
-            self.process.kill()   # its nodes get SIGTERM (parent-death signal)
-            self.process.wait(10)
-
-
-@pytest.fixture
-def up(ros_env, tmp_path):
-    started = []
-
-    def start(*args):
-        u = Up(ros_env, tmp_path, *args)
-        started.append(u)
-        return u
-    yield start
-    for u in started:
-        u.kill()
-
-
-def node_pids(match):
-    pids = dict(item.rsplit(' ', 1) for item in match.group(3).split(', '))
-    return {name: int(pid) for name, pid in pids.items()}
 
 
 @pytest.mark.timeout(120)

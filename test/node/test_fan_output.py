@@ -209,6 +209,20 @@ def test_cut_link_resends_safe_when_the_link_returns(harness, autopilot):
     assert wait_for(outputs_are(autopilot, SAFE), 3.0), autopilot.outputs()
 
 
+def test_an_autopilot_that_forgot_the_outputs_gets_them_again(harness, autopilot):
+    start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
+    expected = {ch: round(1000 + 1000 * u) for ch, u in zip(CHANNELS, (0.2, 0.5, 0.9))}
+    autopilot.reboot()                     # outputs back to safe, heartbeats go on
+    assert outputs_are(autopilot, SAFE)()
+    for _ in range(40):                    # the coordinator republishes the same command
+        harness.command((0.2, 0.5, 0.9))
+        if outputs_are(autopilot, expected)():
+            break
+        time.sleep(0.1)
+    assert outputs_are(autopilot, expected)(), autopilot.outputs()
+    assert int(harness.fresh_diag()['resyncs']) == 1
+
+
 def test_watchdog_makes_safe_unless_commands_keep_coming(harness, autopilot):
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=0.5)
     for _ in range(10):                    # republished at 5 Hz: stays on for 1 s

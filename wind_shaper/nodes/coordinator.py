@@ -100,6 +100,10 @@ class _Stop(Exception):
         self.state = state
 
 
+#: Shortest interval between resends of an unanswered idempotent request [s].
+RESEND_MIN_S = 2.5
+
+
 class _FanWatch:
     """The fans' read-back during one sweep: the longest pause between reports [s] and the
     first report off the commands U [fraction] by more than ``tolerance``."""
@@ -339,9 +343,13 @@ class CoordinatorNode(Node):
             timer.cancel()
             self.destroy_timer(timer)
 
-    async def _call(self, client, request, what: str, timeout_s: float, deadline: float):
+    async def _call(self, client, request, what: str, timeout_s: float, deadline: float, *,
+                    resend: bool = False):
         """Call a service and return its response; a missing service, a timeout or a cancel
-        ends the iteration (_Stop)."""
+        ends the iteration (_Stop). ``resend`` (idempotent calls only): while no answer came the
+        request goes out again every max(RESEND_MIN_S, timeout_s / 4), for a server restarted in
+        the meantime never saw the earlier one (DDS drops a request sent before the server was
+        matched)."""
         if not client.service_is_ready():
             give_up = min(time.monotonic() + self.params.service_timeout_s, deadline)
             while not client.service_is_ready() and time.monotonic() < give_up:
@@ -352,8 +360,18 @@ class CoordinatorNode(Node):
                 raise _Stop(IterationStatus.STATE_FAILED,
                             f'no {client.srv_name} service within {self.params.service_timeout_s:g} s: '
                             f'is {what} running?')
+        # resend: every `every` [s] while no answer came, until timeout_s
+        every = max(RESEND_MIN_S, timeout_s / 4) if resend else timeout_s
+        give_up = time.monotonic() + self._bounded(timeout_s, deadline)
         future = client.call_async(request)
-        reason = await self._wait(future, self._bounded(timeout_s, deadline))
+        reason = await self._wait(future, min(every, give_up - time.monotonic()))
+        while reason == 'timeout' and time.monotonic() < give_up - 1e-3:
+            client.remove_pending_request(future)
+            self.get_logger().warning(f'{what} did not answer yet: asking again (a restarted '
+                                      f'{what} never saw the earlier request)',
+                                      throttle_duration_sec=5.0)
+            future = client.call_async(request)
+            reason = await self._wait(future, min(every, give_up - time.monotonic()))
         if reason != 'done':
             client.remove_pending_request(future)
             self._raise_for(reason, f'{what} did not answer within {timeout_s:g} s', deadline)
@@ -468,7 +486,7 @@ class CoordinatorNode(Node):
                     self._estimate_client,
                     EstimateField.Request(iteration=k, fan_names=self._fan_names,
                                           pwm=[float(u) for u in U]),
-                    'field_estimator', p.service_timeout_s, deadline)
+                    'field_estimator', p.service_timeout_s, deadline, resend=True)
                 if answer.success:
                     break
                 if attempt == p.max_sweeps:

@@ -48,6 +48,10 @@ from ..ros.convert import fan_command, pwm_from_command
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 
+#: A read-back off the sent command by more than this [fraction] (2 us in 1000 us) for RESYNC_S
+#: [s] makes fan_output send the command again.
+RESYNC_TOLERANCE = 0.002
+RESYNC_S = 1.0
 PAPER_FANS = ('LM1', 'HM1', 'LM2', 'HM2', 'LM3', 'HM3', 'CM')
 
 
@@ -151,8 +155,10 @@ class FanOutputNode(LifecycleNode):
         self._last_command: float | None = None     # time.monotonic() of the last good command
         self._limiter = SlewLimiter(p.slew_rate_per_s, self._rest)
         self._last_sent: dict[int, int] | None = None
+        self._last_value: np.ndarray | None = None     # fractions of _last_sent, fan order
+        self._off_since: float | None = None           # read-back off _last_value since [s]
         self._counts = dict(commands=0, rejected=0, clipped=0, watchdog_trips=0, link_losses=0,
-                            estops=0, exceptions=0)
+                            estops=0, exceptions=0, resyncs=0)
         self._reported = dict(self._counts)
         self._last_reject = ''
         self._last_clipped: tuple[str, ...] = ()
@@ -228,7 +234,7 @@ class FanOutputNode(LifecycleNode):
         with self._lock:
             self._target = None
             self._limiter.reset(self._rest)
-            self._last_sent = None
+            self._last_sent = self._last_value = None
             if self._link is not None:
                 self._link.go_safe()
         self.get_logger().info(f'fans safe ({reason})')
@@ -304,7 +310,7 @@ class FanOutputNode(LifecycleNode):
             pulses = self._map.command(value).pulses
             if pulses != self._last_sent:
                 link.send(value)
-                self._last_sent = pulses
+                self._last_sent, self._last_value = pulses, np.array(value, dtype=float)
 
     @_guarded
     def _on_link_lost(self) -> None:
@@ -313,7 +319,7 @@ class FanOutputNode(LifecycleNode):
             self._counts['link_losses'] += 1
             self._target = None
             self._limiter.reset(self._rest)
-            self._last_sent = None
+            self._last_sent = self._last_value = None
         self.get_logger().error(
             f'no autopilot heartbeat for {self.params.heartbeat_timeout_s} s: link lost, fans '
             f'safe; they stay safe until the link is back and a new command arrives')
@@ -323,7 +329,7 @@ class FanOutputNode(LifecycleNode):
         # on the link's reader thread. The safe pulse sent when the link was lost may never
         # have arrived (a pulled cable): while no command is held, send it again now.
         with self._lock:
-            self._last_sent = None
+            self._last_sent = self._last_value = None
             if self._target is None and self._link is not None:
                 self._link.go_safe()
         self.get_logger().info(f'autopilot heartbeat received: link up ({self.params.mavlink_url})')
@@ -331,9 +337,37 @@ class FanOutputNode(LifecycleNode):
     @_guarded
     def _on_servo_outputs(self, fractions: dict) -> None:
         # on the link's reader thread, for every SERVO_OUTPUT_RAW
+        self._check_outputs(fractions)
         present = [n for n in self._names if n in fractions]
         self._pub_applied.publish(fan_command(present, [fractions[n] for n in present],
                                               self.get_clock().now().to_msg()))
+
+    def _check_outputs(self, fractions: dict) -> None:
+        """An autopilot that restarted (or lost a command) reports outputs other than the ones
+        sent, and pulses are sent only when they change: after RESYNC_S [s] of a mismatch, send
+        them again."""
+        now = time.monotonic()
+        with self._lock:
+            sent = self._last_value
+            if (sent is None or self._estop or self._target is None
+                    or np.max(np.abs(sent - self._target)) > 1e-9):   # still slewing
+                self._off_since = None
+                return
+            off = any(abs(fractions[n] - u) > RESYNC_TOLERANCE
+                      for n, u in zip(self._names, sent) if n in fractions)
+            if not off:
+                self._off_since = None
+                return
+            if self._off_since is None:
+                self._off_since = now
+                return
+            if now - self._off_since < RESYNC_S:
+                return
+            self._off_since = None
+            self._last_sent = self._last_value = None    # the send timer sends them again
+            self._counts['resyncs'] += 1
+        self.get_logger().warning(f'the autopilot reports outputs other than the commands for '
+                                  f'{RESYNC_S:g} s (did it restart?): sending them again')
 
     @_guarded
     def _handle_emergency_stop(self, request: Trigger.Request,

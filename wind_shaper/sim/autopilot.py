@@ -148,6 +148,15 @@ class SimAutopilot(UdpPeer):
     def restore_link(self) -> None:
         self._cut = False
 
+    def reboot(self) -> None:
+        """Forget every servo setting and override, as an autopilot that restarted (faster than
+        a heartbeat timeout): all outputs back to the safe pulse."""
+        with self._lock:
+            self._servo = {ch: self.safe_us for ch in self._servo}
+            self._override.clear()
+            self._override_time = None
+        self._update_applied()
+
     # ---------------------------------------------------------------- loop
     def _run(self) -> None:
         next_hb = next_so = time.monotonic()

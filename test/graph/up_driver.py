@@ -1,0 +1,114 @@
+"""Driving `wind-shaper up --sim` from tests: the command in a subprocess with its output
+collected, and the node processes it starts, found by PID. Used by test_up and test_faults."""
+import os
+import re
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+NODES = ('sim_tunnel', 'fan_output', 'force_sensor', 'mocap_relay', 'field_estimator',
+         'coordinator')
+UP_LINE = re.compile(r'all (\d+) nodes are up in ([\d.]+) s \(pids: (.*)\)')
+
+
+def alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    state = Path(f'/proc/{pid}/stat').read_text().split(')')[1].split()[0]
+    return state != 'Z'
+
+
+def children_of(pid):
+    """PIDs whose parent is ``pid`` (from /proc)."""
+    out = []
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / 'stat').read_text().split(')')[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def free_udp_ports(n):
+    """n UDP ports that are free on loopback now."""
+    sockets = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    try:
+        for sock in sockets:
+            sock.bind(('127.0.0.1', 0))
+        return [sock.getsockname()[1] for sock in sockets]
+    finally:
+        for sock in sockets:
+            sock.close()
+
+
+class Up:
+    """``wind-shaper up`` in a subprocess, its output collected line by line. The simulated rig's
+    MAVLink and Net F/T ports are free ones, so a graph someone runs on the default ports (a
+    demo) does not collide with the test's."""
+
+    def __init__(self, env, cwd, *args):
+        missing = [n for n in NODES if not (Path(__file__).resolve().parents[2] / 'wind_shaper'
+                                             / 'nodes' / f'{n}.py').is_file()]
+        assert not missing, f'node modules missing: {missing}'
+        mavlink, netft = free_udp_ports(2)
+        ports = ['--set', f'sim_tunnel.mavlink_port={mavlink}',
+                 '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
+                 '--set', f'sim_tunnel.netft_port={netft}',
+                 '--set', f'force_sensor.sensor_port={netft}']
+        self.process = subprocess.Popen(
+            [sys.executable, '-m', 'wind_shaper.cli.main', 'up', '--sim', *ports, *args], cwd=cwd,
+            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, start_new_session=True)
+        self.lines = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip('\n'))
+
+    def output(self):
+        return '\n'.join(self.lines)
+
+    def wait_line(self, pattern, timeout_s):
+        regex = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for line in list(self.lines):
+                m = regex.search(line)
+                if m:
+                    return m
+            if self.process.poll() is not None and not self._reader.is_alive():
+                break
+            time.sleep(0.1)
+        pytest.fail(f'no line matching {pattern!r} within {timeout_s} s; output:\n'
+                    f'{self.output()[-6000:]}')
+
+    def wait(self, timeout_s):
+        try:
+            code = self.process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f'wind-shaper up did not end within {timeout_s} s; output:\n'
+                        f'{self.output()[-6000:]}')
+        self._reader.join(5.0)
+        return code
+
+    def kill(self):
+        if self.process.poll() is None:
+            self.process.kill()   # its nodes get SIGTERM (parent-death signal)
+            self.process.wait(10)
+
+
+def node_pids(match):
+    pids = dict(item.rsplit(' ', 1) for item in match.group(3).split(', '))
+    return {name: int(pid) for name, pid in pids.items()}
