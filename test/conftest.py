@@ -96,16 +96,26 @@ def ros_process(ros_env, tmp_path):
 
 # -- the fault table (tools/fault_table.py) ----------------------------------------------------
 _FAULT_ROWS: list = []
+_FAILED: set = set()
 
 
 @pytest.fixture
 def fault_row(request):
-    """``fault_row(fault, outcome, survived, samples_lost)``: one row of the fault table, kept
-    for the run and written to $WIND_SHAPER_FAULT_TABLE (JSON lines) when that is set."""
-    def record(fault: str, outcome: str, survived: bool, samples_lost: int) -> None:
+    """``fault_row(fault, outcome, survived, samples_lost=None)``: one row of the fault table.
+    A row of a test that fails counts as not survived. Rows are written to
+    $WIND_SHAPER_FAULT_TABLE (JSON lines) at the end of the run when that is set."""
+    def record(fault: str, outcome: str, survived: bool, samples_lost: int | None = None) -> None:
         _FAULT_ROWS.append({'fault': fault, 'outcome': outcome, 'survived': bool(survived),
-                            'samples_lost': int(samples_lost), 'test': request.node.nodeid})
+                            'samples_lost': None if samples_lost is None else int(samples_lost),
+                            'test': request.node.nodeid})
     return record
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = (yield).get_result()
+    if report.failed:
+        _FAILED.add(item.nodeid)
 
 
 def pytest_sessionfinish(session, exitstatus):
@@ -114,4 +124,5 @@ def pytest_sessionfinish(session, exitstatus):
         import json
         with open(path, 'a', encoding='utf-8') as fh:
             for row in _FAULT_ROWS:
+                row = dict(row, survived=row['survived'] and row['test'] not in _FAILED)
                 fh.write(json.dumps(row) + '\n')

@@ -330,7 +330,8 @@ def test_a_refused_sweep_is_swept_again_up_to_max_sweeps(graph):
     assert graph.store().last_completed() == 0  # the failed iteration left the run as it was
 
 
-def test_second_call_is_refused_and_cancel_keeps_the_commands(graph):
+@pytest.mark.fault
+def test_second_call_is_refused_and_cancel_keeps_the_commands(graph, fault_row):
     graph.start_coordinator(sweep_duration_s=5.0)
     first = graph.iterate()
     assert first.success, first.message
@@ -357,9 +358,12 @@ def test_second_call_is_refused_and_cancel_keeps_the_commands(graph):
     np.testing.assert_array_equal(graph.rig.commands[-1], first.pwm_after)
     nothing = graph.call(graph.cancel, Trigger.Request())
     assert not nothing.success and 'no iteration is running' in nothing.message
+    fault_row('a second run_iteration call while one runs',
+              'refused, never interleaved; cancel keeps the last completed commands', True)
 
 
-def test_a_bad_target_is_refused_and_nothing_changes(graph):
+@pytest.mark.fault
+def test_a_bad_target_is_refused_and_nothing_changes(graph, fault_row):
     graph.start_coordinator()
     r = graph.iterate(target='gaussian@NOPE')
     assert not r.success and 'NOPE' in r.message and 'nothing changed' in r.message
@@ -373,6 +377,8 @@ def test_a_bad_target_is_refused_and_nothing_changes(graph):
     assert graph.store().state().target == 'uniform:2.0'
     assert graph.status().target == 'uniform:2.0'
     assert graph.store().load_record(0)['target'] == 'uniform:2.0'
+    fault_row('a target that does not parse, names an unknown fan, or is out of reach',
+              'refused with the reason; target, run and fans unchanged', True)
 
 
 @pytest.fixture

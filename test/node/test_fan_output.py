@@ -144,16 +144,20 @@ def test_command_reaches_the_autopilot_and_comes_back_applied(harness, flavour):
         assert wait_for(applied_matches), harness.applied[-1:]
 
 
-def test_out_of_range_is_clipped_and_reported(harness, autopilot):
+@pytest.mark.fault
+def test_out_of_range_is_clipped_and_reported(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.3, 0.3, 0.3), u_min=0.1, u_max=0.8)
     harness.command((0.95, 0.05, 0.5))
     assert wait_for(outputs_are(autopilot, {3: 1800, 5: 1100, 1: 1500})), autopilot.outputs()
     assert wait_for(lambda: harness.applied and math.isclose(harness.applied[-1].pwm[0], 0.8))
     values = wait_for(lambda: (v := harness.fresh_diag()) and v['clipped'] == '1' and v)
     assert values and values['last_clipped'] == 'a,b', harness.diag_values()
+    fault_row('fan command outside the configured [u_min, u_max]',
+              'clipped to the configured range before sending, reported in /diagnostics', True)
 
 
-def test_malformed_commands_change_nothing(harness, autopilot):
+@pytest.mark.fault
+def test_malformed_commands_change_nothing(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.2, 0.5, 0.9))
     before = autopilot.outputs()
     harness.command((0.1, 0.1, 0.1), fans=['a', 'b', 'x'])            # unknown fan
@@ -166,9 +170,12 @@ def test_malformed_commands_change_nothing(harness, autopilot):
     assert values['commands'] == '1' and values['_level'] == b'\x01'
     time.sleep(0.2)
     assert autopilot.outputs() == before
+    fault_row('malformed FanCommand: NaN/inf, unknown or missing fan names, length mismatch',
+              'refused with the reason; the outputs do not change', True)
 
 
-def test_slew_limit(harness, autopilot):
+@pytest.mark.fault
+def test_slew_limit(harness, autopilot, fault_row):
     log = []
     autopilot.on_outputs = lambda out: log.append((time.monotonic(), out[3]))
     start_at(harness, autopilot, (0.0, 0.0, 0.0), slew_rate_per_s=1.0)
@@ -184,9 +191,12 @@ def test_slew_limit(harness, autopilot):
             if tj - ti >= 0.2:
                 assert (uj - ui) / (tj - ti) <= 1000 * 1.0 * 1.3, (ti, ui, tj, uj)
     assert all(b >= a for (_, a), (_, b) in zip(log, log[1:]))
+    fault_row('a step command from 0 to full',
+              'slewed at slew_rate_per_s, never a jump', True)
 
 
-def test_heartbeat_loss_makes_safe_and_a_new_command_resumes(harness, autopilot):
+@pytest.mark.fault
+def test_heartbeat_loss_makes_safe_and_a_new_command_resumes(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
     autopilot.pause_heartbeat()
     assert wait_for(outputs_are(autopilot, SAFE), 2.0), autopilot.outputs()
@@ -198,18 +208,24 @@ def test_heartbeat_loss_makes_safe_and_a_new_command_resumes(harness, autopilot)
     assert outputs_are(autopilot, SAFE)()      # the old command does not come back by itself
     harness.command((0.4, 0.4, 0.4))
     assert wait_for(outputs_are(autopilot, {3: 1400, 5: 1400, 1: 1400}))
+    fault_row('autopilot heartbeat stops (heartbeat_timeout_s)',
+              'fans safe; resume only on a new command', True)
 
 
-def test_cut_link_resends_safe_when_the_link_returns(harness, autopilot):
+@pytest.mark.fault
+def test_cut_link_resends_safe_when_the_link_returns(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
     autopilot.cut_link()                   # the safe pulse sent at the loss cannot arrive
     assert wait_for(lambda: harness.fresh_diag()['link'] == 'down', 3.0)
     assert autopilot.outputs()[1] == 1900
     autopilot.restore_link()
     assert wait_for(outputs_are(autopilot, SAFE), 3.0), autopilot.outputs()
+    fault_row('MAVLink link cut both ways (pulled cable)',
+              'link loss detected, fans safe; the safe pulse sent again when the link returns', True)
 
 
-def test_an_autopilot_that_forgot_the_outputs_gets_them_again(harness, autopilot):
+@pytest.mark.fault
+def test_an_autopilot_that_forgot_the_outputs_gets_them_again(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
     expected = {ch: round(1000 + 1000 * u) for ch, u in zip(CHANNELS, (0.2, 0.5, 0.9))}
     autopilot.reboot()                     # outputs back to safe, heartbeats go on
@@ -221,9 +237,12 @@ def test_an_autopilot_that_forgot_the_outputs_gets_them_again(harness, autopilot
         time.sleep(0.1)
     assert outputs_are(autopilot, expected)(), autopilot.outputs()
     assert int(harness.fresh_diag()['resyncs']) == 1
+    fault_row('autopilot restarts (outputs reset, heartbeats go on)',
+              'read-back mismatch seen, commands sent again', True)
 
 
-def test_watchdog_makes_safe_unless_commands_keep_coming(harness, autopilot):
+@pytest.mark.fault
+def test_watchdog_makes_safe_unless_commands_keep_coming(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=0.5)
     for _ in range(10):                    # republished at 5 Hz: stays on for 1 s
         harness.command((0.2, 0.5, 0.9))
@@ -234,9 +253,12 @@ def test_watchdog_makes_safe_unless_commands_keep_coming(harness, autopilot):
     assert wait_for(outputs_are(autopilot, SAFE), 2.0)
     assert time.monotonic() - t_last >= 0.45
     assert harness.fresh_diag()['watchdog_trips'] == '1'
+    fault_row('commands stop arriving (command_timeout_s)',
+              'watchdog makes the fans safe', True)
 
 
-def test_emergency_stop_latches_until_reset(harness, autopilot):
+@pytest.mark.fault
+def test_emergency_stop_latches_until_reset(harness, autopilot, fault_row):
     start_at(harness, autopilot, (0.6, 0.6, 0.6), slew_rate_per_s=0.5)   # a ramp takes 1.2 s
     t0 = time.monotonic()
     assert harness.call(names.EMERGENCY_STOP).success
@@ -254,17 +276,23 @@ def test_emergency_stop_latches_until_reset(harness, autopilot):
     assert outputs_are(autopilot, SAFE)()      # reset alone does not restart the fans
     harness.command((0.3, 0.3, 0.3))
     assert wait_for(lambda: autopilot.outputs()[1] > 1000, 1.0)
+    fault_row('emergency stop service',
+              'all fans safe at once, latched: commands refused until reset_stop', True)
 
 
-def test_destroy_node_makes_safe(harness, autopilot):
+@pytest.mark.fault
+def test_destroy_node_makes_safe(harness, autopilot, fault_row):
     node = start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
     harness.executor.remove_node(node)
     harness.nodes.remove(node)
     node.destroy_node()
     assert wait_for(outputs_are(autopilot, SAFE), 1.0), autopilot.outputs()
+    fault_row('fan_output shut down (SIGINT/SIGTERM path: destroy_node)',
+              'safe pulse sent before the link closes', True)
 
 
-def test_exception_in_a_callback_makes_safe(harness, autopilot):
+@pytest.mark.fault
+def test_exception_in_a_callback_makes_safe(harness, autopilot, fault_row):
     node = start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
 
     def broken(*args):
@@ -275,6 +303,8 @@ def test_exception_in_a_callback_makes_safe(harness, autopilot):
     # a command that arrives after the failure (republished, or delivered late on a busy
     # machine) is tried again, fails again and makes the fans safe again: each failure counts
     assert int(harness.fresh_diag()['exceptions']) >= 1
+    fault_row('an exception inside a fan_output callback',
+              'fans safe, the error logged, the node goes on', True)
 
 
 def test_lifecycle_without_autostart(harness, autopilot):

@@ -244,7 +244,8 @@ def test_estimate_without_a_sweep_says_to_begin_one(harness):
     assert not resp.success and 'call begin_sweep' in resp.message
 
 
-def test_no_samples_fails_and_collection_goes_on(harness, sim):
+@pytest.mark.fault
+def test_no_samples_fails_and_collection_goes_on(harness, sim, fault_row):
     harness.begin_sweep()
     resp = harness.estimate_field()
     assert not resp.success
@@ -253,9 +254,12 @@ def test_no_samples_fails_and_collection_goes_on(harness, sim):
     harness.publish(*sweep_streams(sim, n_poses=250, seed=3))
     resp = harness.estimate_field()
     assert resp.success, resp.message
+    fault_row('a sweep with too few samples',
+              'refused with the counts; collection goes on', True)
 
 
-def test_poor_coverage_fails_with_the_gap_and_publishes_nothing(harness, sim):
+@pytest.mark.fault
+def test_poor_coverage_fails_with_the_gap_and_publishes_nothing(harness, sim, fault_row):
     harness.begin_sweep()
     harness.publish(*sweep_streams(sim, n_poses=250, half_disc=True, seed=4))
     resp = harness.estimate_field()
@@ -263,14 +267,19 @@ def test_poor_coverage_fails_with_the_gap_and_publishes_nothing(harness, sim):
     assert 'missed' in resp.message and 'sweep the plate over the whole area' in resp.message
     time.sleep(0.2)
     assert harness.fields == []  # the latched field is not replaced by a failed estimate
+    fault_row('sweep with poor coverage of the key points',
+              'refused with the largest gap; nothing published; the coordinator sweeps again', True)
 
 
-def test_streams_out_of_step_are_reported(harness, sim):
+@pytest.mark.fault
+def test_streams_out_of_step_are_reported(harness, sim, fault_row):
     force_t, force, pose_t, pose_xy = sweep_streams(sim, n_poses=200, seed=5)
     harness.begin_sweep()
     harness.publish(force_t + 30.0, force, pose_t, pose_xy)
     resp = harness.estimate_field()
     assert not resp.success and 'out of step' in resp.message
+    fault_row('force and pose streams out of step in time',
+              'estimate refused with both time spans; buffers kept', True)
 
 
 def test_a_request_for_other_fans_is_refused(harness, sim):

@@ -131,7 +131,8 @@ def test_wrenches_match_the_source_within_the_count_resolution(harness, force_si
     assert all(b > a for a, b in zip(times, times[1:]))             # in order, no repeats
 
 
-def test_loss_counts_match_the_injected_faults(harness):
+@pytest.mark.fault
+def test_loss_counts_match_the_injected_faults(harness, fault_row):
     faults = NetFtFaults(drop_probability=0.05, duplicate_probability=0.03,
                          reorder_probability=0.03, status_fault_probability=0.03, seed=11)
     with SimNetFtServer(source, rate_hz=250.0, faults=faults) as server:
@@ -170,11 +171,16 @@ def test_loss_counts_match_the_injected_faults(harness):
     assert int(values['received']) == len(sent) + len(log.duplicated)
     assert int(values['rejected_source']) == 3
     assert int(values['published']) == expected_published
-    # the ROS hop to this process's subscriber may lose some when the machine is loaded (the
-    # QoS depth is 100 samples); bench/force_stream.py measures that hop between processes
-    wait_for(lambda: len(harness.wrenches) >= expected_published, 1.0)
-    assert 0.8 * expected_published <= len(harness.wrenches) <= expected_published
-    assert all(m.wrench.force.x < 10 for m in harness.wrenches)      # no stranger's record
+    # every good record reaches the subscriber (reliable, depth 1000)
+    wait_for(lambda: len(harness.wrenches) >= expected_published, 3.0)
+    strangers = sum(1 for m in harness.wrenches if m.wrench.force.x >= 10)
+    fault_row('Net F/T: 5 % of RDT datagrams dropped, 3 % duplicated, 3 % reordered, 3 % with a '
+              'fault status, 3 from a foreign address',
+              'each counted as such in /diagnostics; duplicates, late and faulted records and the '
+              'stranger\'s never published', strangers == 0,
+              expected_published - len(harness.wrenches))
+    assert len(harness.wrenches) == expected_published
+    assert strangers == 0                                            # no stranger's record
 
 
 def test_bias_service_zeroes_the_reading(harness):

@@ -106,7 +106,8 @@ def test_plate_centre_in_the_tunnel_frame_with_the_stamp_kept(relay):
     assert (received[1].header.stamp.sec, received[1].header.stamp.nanosec) == (100, 350_000_000)
 
 
-def test_nan_and_jumps_are_dropped_and_counted(relay):
+@pytest.mark.fault
+def test_nan_and_jumps_are_dropped_and_counted(relay, fault_row):
     node, send, received, diag = relay
     send(pose(10.00, (0.0, 0.0, 1.0)))
     assert wait_for(lambda: len(received) == 1)
@@ -124,6 +125,8 @@ def test_nan_and_jumps_are_dropped_and_counted(relay):
     values = diag()
     assert (values['invalid'], values['jumps'], values['stale'], values['published'],
             values['received']) == ('2', '1', '1', '3', '7')
+    fault_row('mocap pose with NaN, or a plate that jumps',
+              'dropped and counted; never reaches the estimator', True)
 
 
 class Streamer:
@@ -156,7 +159,8 @@ class Streamer:
             time.sleep(0.01)
 
 
-def test_dropout_and_outside_are_flagged(relay):
+@pytest.mark.fault
+def test_dropout_and_outside_are_flagged(relay, fault_row):
     node, send, received, diag = relay
     streamer = Streamer(send, 50.0)
     with streamer.at((0.2, 0.0, 1.0)):                # (0.1, 0.0) in the tunnel
@@ -175,6 +179,8 @@ def test_dropout_and_outside_are_flagged(relay):
     assert float(values['longest_dropout_s']) > CALIBRATION['dropout_timeout_s']
     last = received[-1].pose.position
     assert (last.x, last.y) == pytest.approx((0.2, 0.5))   # outside poses are still published
+    fault_row('mocap dropout; plate outside the tunnel',
+              'flagged in /diagnostics, poses outside not published', True)
 
 
 def test_bad_parameters_are_refused(ros_context):

@@ -271,7 +271,8 @@ def test_parser_nesting_limit_beyond_the_length_limit_is_a_target_error(monkeypa
             ExpressionTarget(text)
 
 
-def test_hostile_expressions_run_no_code(monkeypatch, tmp_path):
+@pytest.mark.fault
+def test_hostile_expressions_run_no_code(monkeypatch, tmp_path, fault_row):
     marker = tmp_path / 'pwned'
     payloads = [
         f"__import__('os').system('touch {marker}')",
@@ -317,6 +318,8 @@ def test_hostile_expressions_run_no_code(monkeypatch, tmp_path):
     assert parses, 'the compile() guard was not exercised, so it proves nothing'
     assert forbidden_calls == []
     assert not marker.exists()
+    fault_row('target expressions that try to run code (__import__, attribute access, lambdas, huge powers)',
+              'parsed by an AST whitelist, refused with the reason; nothing runs', True)
 
 
 def test_module_never_calls_eval_exec_or_compile():
@@ -388,13 +391,16 @@ CSV_ERRORS = {
 
 
 @pytest.mark.parametrize('case', CSV_ERRORS)
-def test_csv_errors(tmp_path, key_points, case):
+@pytest.mark.fault
+def test_csv_errors(tmp_path, key_points, case, fault_row):
     build, fragment = CSV_ERRORS[case]
     path = tmp_path / 'target.csv'
     if build is not None:
         path.write_text(build(_rows(key_points)))
     with pytest.raises(TargetError, match=fragment):
         CsvTarget(path, key_points)
+    fault_row('a target CSV of the wrong size, with unknown points or non-numbers',
+              'refused with the line and what to fix', True)
 
 
 def test_csv_accepts_blank_lines_spaces_and_a_byte_order_mark(tmp_path, key_points):

@@ -168,7 +168,8 @@ def test_close_goes_safe_and_refuses_further_use(wait_for):
         ap.close()
 
 
-def test_signed_link_works_and_a_wrong_key_or_no_signing_is_rejected(wait_for):
+@pytest.mark.fault
+def test_signed_link_works_and_a_wrong_key_or_no_signing_is_rejected(wait_for, fault_row):
     key = os.urandom(32)
     ap = SimAutopilot(flavour='ardupilot', signing_key=key)
     links = []
@@ -192,6 +193,8 @@ def test_signed_link_works_and_a_wrong_key_or_no_signing_is_rejected(wait_for):
         for link in links:
             link.close()
         ap.close()
+    fault_row('MAVLink 2 packets with a wrong signing key, or unsigned, on a signed link',
+              'rejected by the autopilot and by fan_output', True)
 
 
 def test_udpin_link_learns_the_autopilot_that_calls_it(wait_for):

@@ -105,7 +105,8 @@ def test_decode_rate_of_the_pure_path_beats_the_sensor():
     assert n == 20000 and rate > 7000
 
 
-def test_packets_from_a_wrong_source_are_rejected(rig, wait_for):
+@pytest.mark.fault
+def test_packets_from_a_wrong_source_are_rejected(rig, wait_for, fault_row):
     server, client, got = rig()
     intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
@@ -120,6 +121,8 @@ def test_packets_from_a_wrong_source_are_rejected(rig, wait_for):
         assert all(abs(x.force[0]) < 2.0 for x in got.samples)   # none of the forged 123 N
     finally:
         intruder.close()
+    fault_row('RDT packets from an address other than the sensor',
+              'rejected and counted, never used', True)
 
 
 def test_status_faults_and_overflow_are_reported_not_silently_used(rig, wait_for):

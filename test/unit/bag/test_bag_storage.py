@@ -114,11 +114,14 @@ def test_a_bag_never_closed_is_reported_as_such(good_bag):
 
 
 @pytest.mark.parametrize('cut', [0.5, 0.98])
-def test_a_truncated_bag_gives_a_clear_error(good_bag, cut):
+@pytest.mark.fault
+def test_a_truncated_bag_gives_a_clear_error(good_bag, cut, fault_row):
     data = (good_bag / 'good.mcap').read_bytes()
     (good_bag / 'good.mcap').write_bytes(data[:int(len(data) * cut)])
     with pytest.raises(BagReadError, match='cannot read bag .*damaged or truncated'):
         read_sweeps(good_bag)
+    fault_row('a truncated bag',
+              'clear error naming the file; nothing else read wrongly', True)
 
 
 def test_corrupted_metadata_gives_a_clear_error(good_bag):
@@ -127,10 +130,13 @@ def test_corrupted_metadata_gives_a_clear_error(good_bag):
         read_sweeps(good_bag)
 
 
-def test_a_storage_file_of_garbage_gives_a_clear_error(good_bag):
+@pytest.mark.fault
+def test_a_storage_file_of_garbage_gives_a_clear_error(good_bag, fault_row):
     (good_bag / 'good.mcap').write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
     with pytest.raises(BagReadError, match='cannot read bag'):
         read_sweeps(good_bag)
+    fault_row('a bag whose storage file is garbage',
+              'clear error naming the file', True)
 
 
 def pose(sec):

@@ -54,11 +54,14 @@ def test_gp_interpolates_noise_free_data_and_std_grows_away_from_data():
     assert far_std[0] > 10 * std.max()
 
 
-def test_gp_survives_duplicate_positions():
+@pytest.mark.fault
+def test_gp_survives_duplicate_positions(fault_row):
     X = np.zeros((10, 2))
     y = np.linspace(1, 2, 10)
     gp = GaussianProcessField(noise_std=0.0).fit(X, y)
     assert np.isfinite(gp.predict(np.array([[0.0, 0.0]]))).all()
+    fault_row('duplicate sample positions (ill-conditioned GP)',
+              'estimate stays finite and correct', True)
 
 
 def test_estimator_refuses_thin_or_partial_sweeps(rig, rng):

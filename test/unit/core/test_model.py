@@ -97,13 +97,16 @@ def test_composition_operators_and_repr(rig):
     assert text.startswith('(FanJets(') and '+ CentralRing(' in text and ') * CentralRing(' in text
 
 
-def test_model_file_errors_name_the_problem(rig):
+@pytest.mark.fault
+def test_model_file_errors_name_the_problem(rig, fault_row):
     with pytest.raises(ModelFileError, match='unknown model term kind'):
         term_from_dict({'kind': 'warp_drive'}, rig.fans)
     with pytest.raises(ModelFileError, match='kind'):
         term_from_dict(['not', 'a', 'mapping'], rig.fans)
     with pytest.raises(ModelFileError, match='fan_jets'):
         term_from_dict({'kind': 'fan_jets', 'sigma': 'wide'}, rig.fans)
+    fault_row('a corrupted or wrong model file',
+              'refused with the problem named; the model in use stays', True)
 
 
 def test_registry_holds_every_term_kind():

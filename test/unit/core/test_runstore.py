@@ -128,7 +128,8 @@ def test_a_crash_mid_iteration_keeps_the_previous_state(tmp_path, info, sim, mon
     assert not list((tmp_path / 'r' / 'iterations').glob('.*'))
 
 
-def test_a_crash_while_writing_the_state_keeps_the_old_one(tmp_path, info, sim, monkeypatch):
+@pytest.mark.fault
+def test_a_crash_while_writing_the_state_keeps_the_old_one(tmp_path, info, sim, monkeypatch, fault_row):
     store = RunStore.open(tmp_path, 'r', info, initial_pwm=np.full(7, 0.5))
     before = store.state_path.read_bytes()
     real_replace = rs.os.replace
@@ -150,6 +151,8 @@ def test_a_crash_while_writing_the_state_keeps_the_old_one(tmp_path, info, sim, 
     reopened.write_iteration(iteration(sim, 0, np.full(7, 0.5), np.full(7, 0.44)))
     assert reopened.last_completed() == 0
     np.testing.assert_array_equal(reopened.load_history()[0].next_pwm, np.full(7, 0.44))
+    fault_row('a crash while the run state is written',
+              'atomic rename: the old state stays readable', True)
 
 
 def test_iterations_must_follow_in_order(tmp_path, info, sim):

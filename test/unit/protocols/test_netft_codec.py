@@ -69,7 +69,8 @@ def test_several_records_in_one_datagram_all_decode_in_order():
 
 
 @pytest.mark.parametrize('n', [0, 1, 8, 35, 37, 71, 73])
-def test_datagram_not_a_multiple_of_36_is_malformed_with_a_clear_message(n):
+@pytest.mark.fault
+def test_datagram_not_a_multiple_of_36_is_malformed_with_a_clear_message(n, fault_row):
     with pytest.raises(NetFtPacketError) as info:
         decode_records(bytes(n))
     msg = str(info.value)
@@ -78,6 +79,8 @@ def test_datagram_not_a_multiple_of_36_is_malformed_with_a_clear_message(n):
         assert 'request' in msg
     else:
         assert 'truncated' in msg
+    fault_row('malformed or truncated RDT datagram',
+              'refused with its length; the stream goes on', True)
 
 
 @pytest.mark.parametrize('fields', [(-1, 0, 0, 0, 0, 0, 0, 0, 0), (2**32, 0, 0, 0, 0, 0, 0, 0, 0),
@@ -125,6 +128,9 @@ def test_status_word_flags():
     assert 'undocumented bits 0x00000100' in RdtStatus(0x100).describe()
 
 
-def test_sample_with_fault_status_is_not_ok():
+@pytest.mark.fault
+def test_sample_with_fault_status_is_not_ok(fault_row):
     s = NetFtCalibration().to_sample(RdtRecord(1, 1, 0xC0000000, *([INT32_MAX] * 6)))
     assert not s.ok and s.status_info.saturated
+    fault_row('RDT status word with saturation/fault bits',
+              'sample flagged not ok, never published', True)
