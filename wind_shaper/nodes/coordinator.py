@@ -198,6 +198,7 @@ class CoordinatorNode(Node):
         # holds the last completed iteration's next commands at once
         self._command: np.ndarray | None = self._U.copy() if last >= 0 else None
         self._fan_watch: _FanWatch | None = None
+        self._applied_at: float | None = None   # time.monotonic() of the last read-back
 
         self._cb = ReentrantCallbackGroup()
         self._cmd_pub = self.create_publisher(FanCommand, names.FAN_COMMAND, qos.LATCHED)
@@ -235,7 +236,7 @@ class CoordinatorNode(Node):
         except ValueError as exc:
             self.get_logger().warning(f'ignoring {names.FAN_APPLIED}: {exc}', throttle_duration_sec=10)
             return
-        self._applied = applied
+        self._applied, self._applied_at = applied, time.monotonic()
         watch = self._fan_watch
         if watch is not None:
             watch.saw(time.monotonic(), applied)
@@ -314,9 +315,14 @@ class CoordinatorNode(Node):
                 gate.set_result(reason)
             self._wake()
 
+        since = time.monotonic()
+
         def on_applied() -> None:
-            A = self._applied
-            if A is not None and np.max(np.abs(A - applied)) <= self.params.apply_tolerance:
+            # only a report that arrived after the wait began: a read-back kept from before (a
+            # fan_output that has since restarted and ramps from safe) proves nothing
+            A, at = self._applied, self._applied_at
+            if (A is not None and at is not None and at >= since
+                    and np.max(np.abs(A - applied)) <= self.params.apply_tolerance):
                 open_gate('done')
 
         timer = self.create_timer(max(timeout_s, 1e-3), lambda: open_gate('timeout'),
@@ -331,7 +337,6 @@ class CoordinatorNode(Node):
             future.add_done_callback(lambda _f: open_gate('done'))
         if applied is not None:
             self._applied_hook = on_applied
-            on_applied()  # the latched read-back may already match
         try:
             return await gate
         finally:
