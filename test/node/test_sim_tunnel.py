@@ -141,6 +141,17 @@ def test_the_shipped_rig_settings_match_the_drivers(node, keys):
         assert mine['max_sweep_speed'] < theirs['max_speed_m_s']
 
 
+@pytest.mark.fault
+def test_the_simulated_rig_listens_on_loopback_only(harness, fault_row):
+    h = harness()
+    bound = {'MAVLink': h.node._autopilot.address, 'Net F/T': h.node._netft.address}
+    fault_row('a packet for the simulated rig from another machine',
+              'cannot arrive: its MAVLink and Net F/T sockets are bound to 127.0.0.1 '
+              '(and `wind-shaper up` keeps ROS discovery on LOCALHOST)',
+              all(host == '127.0.0.1' for host, _ in bound.values()))
+    assert all(host == '127.0.0.1' for host, _ in bound.values()), bound
+
+
 def test_mavlink_commands_drive_the_plant(harness):
     h = harness()
     cmap = FanChannelMap(FanChannel(n, ch) for n, ch in zip(FANS, range(1, 8)))
