@@ -21,7 +21,9 @@ Timing is only ever compared within one run of this script (the machine is share
 pinned to one thread (multithreaded BLAS on a busy 2-core machine has 100x outliers).
 
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--source static]
-                                   [--zeta-cache FILE] [--json bench/out/convergence.json]
+                                   [--zeta-cache FILE] [--json FILE]
+The JSON goes to bench/out/convergence.json (--source plate) or bench/out/convergence_static.json
+(--source static) unless --json names another file.
 """
 from __future__ import annotations
 
@@ -149,6 +151,11 @@ def run_method(setup, target_values, effects, rule_cfg, seed, iterations, memory
     return np.array(errors), np.array(compute[:-1]), np.array(cpu[:-1]), stops, peak
 
 
+def default_json(source: str) -> str:
+    """The results file of a measurement source: each source keeps its own."""
+    return 'bench/out/convergence.json' if source == 'plate' else f'bench/out/convergence_{source}.json'
+
+
 def first_within(ratios) -> float:
     hit = np.flatnonzero(np.asarray(ratios) <= WITHIN)
     return float(hit[0]) if len(hit) else np.inf
@@ -158,7 +165,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seeds', type=int, default=5)
     ap.add_argument('--iterations', type=int, default=12)
-    ap.add_argument('--json', default='bench/out/convergence.json')
+    ap.add_argument('--json', default=None,
+                    help='where to write the results (default: bench/out/convergence.json, or '
+                         'bench/out/convergence_static.json with --source static)')
     ap.add_argument('--quick', action='store_true', help='effects off, no CM-off cases, 2 seeds')
     ap.add_argument('--source', choices=('plate', 'static'), default='plate',
                     help='measurement source: the moving plate (default) or the static sensor grid')
@@ -168,6 +177,8 @@ def main(argv=None):
     ap.add_argument('--set', action='append', default=[],
                     help='override an adaptive setting, e.g. --set radius=0.5 (repeatable)')
     args = ap.parse_args(argv)
+    if args.json is None:
+        args.json = default_json(args.source)
     methods = {m: dict(METHODS[m]) for m in args.methods.split(',')}
     for kv in args.set:
         key, _, value = kv.partition('=')

@@ -16,6 +16,9 @@ covers the wall; prior: the rig's fitted jets (config/model.yaml) on every fan.
                                            #   (writes bench/out/scale.json and docs/scaling.png)
   python bench/scale.py --gp-accuracy      # local GP vs exact GP on walls small enough for both
 
+Every run merges what it measured into the JSON (bench/out/scale.json): a --gp-accuracy run keeps
+the --series data of an earlier run, so --replot still works.
+
 (The GP-accuracy cases and the exact GP at 4,865 samples run in the same process and raise its
 max RSS; run without --gp-accuracy for the wall's own footprint.)
 """
@@ -201,7 +204,10 @@ def main(argv=None):
     ap.add_argument('--replot', action='store_true', help='only redraw the plot from --json')
     args = ap.parse_args(argv)
     if args.replot:
-        plot(json.loads(Path(args.json).read_text())['series'], args.plot)
+        series = (read_json(args.json) or {}).get('series')
+        if not series:
+            raise SystemExit(f'{args.json} holds no --series results: run `python bench/scale.py --series` first')
+        plot(series, args.plot)
         return
     doc = {}
     if args.gp_accuracy:
@@ -235,9 +241,27 @@ def main(argv=None):
         doc['series'] = series
         plot(series, args.plot)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(doc, indent=1, default=float))
-        print(f'wrote {args.json}')
+        merge_json(args.json, doc)
+        print(f'wrote {args.json} ({", ".join(doc)}; other results kept)')
+
+
+def read_json(path) -> dict | None:
+    """The results file, or None when there is none yet."""
+    path = Path(path)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def merge_json(path, doc: dict) -> dict:
+    """Write ``doc``'s sections into the results file at ``path``, keeping the sections this run
+    did not measure (a --gp-accuracy run keeps the --series data); return the merged document."""
+    path = Path(path)
+    merged = read_json(path) or {}
+    merged.update(doc)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    tmp.write_text(json.dumps(merged, indent=1, default=float))
+    tmp.replace(path)
+    return merged
 
 
 if __name__ == '__main__':

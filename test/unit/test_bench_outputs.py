@@ -1,0 +1,67 @@
+"""The benchmark scripts keep each result file to itself: a --source static convergence run writes
+convergence_static.json (not over the plate results), and a scale run merges into scale.json (a
+--gp-accuracy run keeps the --series data that --replot draws). The benchmarks themselves are
+replaced by stubs here."""
+import importlib.util
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / 'bench'
+
+
+def _load(name):
+    """Import bench/<name>.py; the BLAS thread settings it makes on import are undone."""
+    keep = {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')}
+    spec = importlib.util.spec_from_file_location(f'bench_{name}', BENCH / f'{name}.py')
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        for k, v in keep.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return module
+
+
+@pytest.mark.parametrize('source,written', [('plate', 'convergence.json'),
+                                            ('static', 'convergence_static.json')])
+def test_convergence_writes_the_file_of_its_source(source, written, tmp_path, monkeypatch):
+    conv = _load('convergence')
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(conv, 'all_cases', lambda: [])  # no cases: only the bookkeeping runs
+    conv.main(['--source', source, '--seeds', '1', '--iterations', '2'])
+    files = sorted(p.name for p in (tmp_path / 'bench' / 'out').iterdir())
+    assert files == [written]
+    assert json.loads((tmp_path / 'bench' / 'out' / written).read_text())['meta']['source'] == source
+
+
+def test_scale_gp_accuracy_keeps_the_series_and_replot_works(tmp_path, monkeypatch):
+    scale = _load('scale')
+    out, png = tmp_path / 'scale.json', tmp_path / 'scaling.png'
+    row = {'fans': 36, 'key_points': 289, 'samples': 1390, 'estimate_cpu_s': 0.01, 'update_cpu_s': 0.02,
+           'total_cpu_s': 0.03}
+    out.write_text(json.dumps({'wall_36x36': {'old': True},
+                               'series': {'fans': [row], 'key_points': [row], 'samples': [row]}}))
+    monkeypatch.setattr(scale, 'gp_accuracy', lambda: [{'fans': 36, 'mean_diff_rms_N': 0.02}])
+    monkeypatch.setattr(scale, 'run', lambda *a, **k: {
+        'estimate_cpu_s': 0.5, 'update_cpu_s': 0.3, 'total_cpu_s': 0.8, 'total_wall_s': 1.0,
+        'setup_cpu_s': 1.7, 'peak_traced_MB': 200.0, 'max_rss_MB': 300.0, 'iterations': [{'peak_traced_MB': 200.0}]})
+    scale.main(['--gp-accuracy', '--json', str(out), '--plot', str(png)])
+    doc = json.loads(out.read_text())
+    assert set(doc) == {'wall_36x36', 'series', 'gp_accuracy'}
+    assert doc['series']['fans'] == [row] and doc['wall_36x36']['total_cpu_s'] == 0.8
+    scale.main(['--replot', '--json', str(out), '--plot', str(png)])
+    assert png.read_bytes()[:4] == b'\x89PNG'
+
+
+def test_scale_replot_without_series_says_what_to_run(tmp_path):
+    scale = _load('scale')
+    out = tmp_path / 'scale.json'
+    out.write_text(json.dumps({'gp_accuracy': []}))
+    with pytest.raises(SystemExit, match='--series'):
+        scale.main(['--replot', '--json', str(out), '--plot', str(tmp_path / 'p.png')])
