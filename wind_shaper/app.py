@@ -70,6 +70,22 @@ class Setup:
         return target
 
 
+def hidden_effects(specs: Sequence[str]) -> list:
+    """Simulator hidden effects from ``EFFECT[:key=value,...]`` texts (``weak_fan:fan=HM2,gain=0.8``,
+    ``tilted_fan:fan=LM2,shift=0.04/0``; ``a/b`` is a vector), as ``--hidden`` takes them; for
+    ``Setup.make_sim(effects=...)``."""
+    from .sim import make_effect
+    from .workbench.commands import parse_spec
+    out = []
+    for text in specs or ():
+        name, params = parse_spec(text)
+        for key, value in params.items():
+            if isinstance(value, list):
+                params[key] = tuple(value)
+        out.append(make_effect(name, **params))
+    return out
+
+
 def calibrate(tunnel, fans, plan: CalibrationPlan = CalibrationPlan()) -> ModelFit:
     """Collect the paper's calibration batch on ``tunnel`` and fit the paper's prior to it."""
     data = collect_calibration(tunnel, plan)
@@ -87,7 +103,9 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
                  model: Term | None = None, u0=None, rule_overrides: dict | None = None,
                  on_iteration: Callable[[IterationRecord], None] | None = None,
                  sim=None) -> tuple[list[IterationRecord], Target]:
-    """Run Algorithm 1 in-process on the simulated tunnel, scored against its true field."""
+    """Run the shaping loop (the configured update rule; ``rule_overrides={'method': 'paper'}``
+    for Algorithm 1) in-process on the simulated tunnel ``sim`` (default: ``make_sim(seed)``),
+    scored against its true field."""
     sim = sim or setup.make_sim(seed=seed)
     model = model or setup.load_model()
     target = setup.make_target(target_spec, model=model)
@@ -110,4 +128,4 @@ def format_iteration(rec: IterationRecord, names: Sequence[str]) -> str:
     return f'k={rec.k:2d}  RMSE est {np.sqrt(rec.error):6.3f} N{true}{lam}  PWM% {pwm}'
 
 
-__all__ = ['Setup', 'calibrate', 'save_fit', 'shape_on_sim', 'format_iteration']
+__all__ = ['Setup', 'hidden_effects', 'calibrate', 'save_fit', 'shape_on_sim', 'format_iteration']

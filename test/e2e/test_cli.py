@@ -57,3 +57,80 @@ def test_calibrate_refits_the_shipped_model(tmp_path):
     kp = setup.geometry.key_points
     # the shipped config/model.yaml is what calibration on the default simulator produces
     np.testing.assert_allclose(fresh(U, kp), shipped(U, kp), atol=0.02)
+
+
+def _true_rmse(out):
+    return [it['true_rmse_N'] for it in json.loads((out / 'run.json').read_text())['iterations']]
+
+
+def test_shape_hidden_switches_on_a_simulator_effect(tmp_path, capsys):
+    """`shape --sim --hidden` shapes the tunnel with the effect (as `model diagnose --sim --hidden`)."""
+    plain, weak = tmp_path / 'plain', tmp_path / 'weak'
+    assert main(['shape', '--sim', '--target', 'gaussian@HM2', '--iterations', '1', '--out', str(plain)]) == 0
+    assert main(['shape', '--sim', '--target', 'gaussian@HM2', '--iterations', '1', '--out', str(weak),
+                 '--hidden', 'weak_fan:fan=HM2,gain=0.8']) == 0
+    assert 'hidden effects: weak_fan:fan=HM2,gain=0.8' in capsys.readouterr().out
+    doc = json.loads((weak / 'run.json').read_text())
+    assert doc['hidden_effects'] == [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}]
+    # same seed and commands at k=0, another tunnel: HM2 at 80 % changes the true field
+    assert abs(_true_rmse(weak)[0] - _true_rmse(plain)[0]) > 0.05
+    assert main(['shape', '--sim', '--hidden', 'weak_fan:fan=NOPE', '--out', str(tmp_path / 'r')]) == 2
+    assert 'NOPE' in capsys.readouterr().err and not (tmp_path / 'r').exists()
+
+
+PLUGIN = '''
+import numpy as np
+from wind_shaper.core.model import Hyper, Term, register_term
+
+@register_term
+class Updraft(Term):
+    kind = {kind!r}
+    hypers = (Hyper('force', 1, (-1.0, 3.0)),)
+
+    def __init__(self, fans, force=0.0, fixed=()):
+        self.fans = fans
+        self.force = float(force)
+        self._init_hypers(fixed)
+        self._check_bounds()
+
+    def _value_and_grad(self, U, Z, jacobian):
+        return np.full(len(Z), self.force), (np.zeros_like(U) if jacobian else None)
+'''
+
+
+def _plugin_model(tmp_path, name):
+    """A plugin file with a term kind of its own and a model file naming that kind."""
+    import uuid
+
+    import yaml
+
+    from wind_shaper.app import Setup
+    kind = f'updraft_{uuid.uuid4().hex[:8]}'
+    plugin = tmp_path / f'{name}.py'
+    plugin.write_text(PLUGIN.format(kind=kind))
+    doc = yaml.safe_load(Setup.load().model_path.read_text())
+    doc['model'] = {'kind': 'sum', 'terms': [doc['model'], {'kind': kind, 'force': 0.1}]}
+    model = tmp_path / f'{name}.yaml'
+    model.write_text(yaml.safe_dump(doc))
+    return plugin, model
+
+
+def test_shape_loads_a_model_naming_a_term_of_your_own(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv('WIND_SHAPER_PLUGINS', raising=False)
+    plugin, model = _plugin_model(tmp_path, 'by_option')
+    argv = ['shape', '--sim', '--target', 'uniform', '--iterations', '1', '--model', str(model)]
+    assert main(argv + ['--out', str(tmp_path / 'r0')]) == 2
+    assert '--plugin FILE or WIND_SHAPER_PLUGINS' in capsys.readouterr().err
+    assert main(argv + ['--plugin', str(plugin), '--out', str(tmp_path / 'r1')]) == 0
+    plugin, model = _plugin_model(tmp_path, 'by_env')
+    monkeypatch.setenv('WIND_SHAPER_PLUGINS', str(plugin))
+    assert main(['shape', '--sim', '--target', 'uniform', '--iterations', '1', '--model', str(model),
+                 '--out', str(tmp_path / 'r2')]) == 0
+    assert 'Updraft' in json.loads((tmp_path / 'r2' / 'run.json').read_text())['model']
+
+
+def test_help_names_the_default_update_rule(capsys):
+    with pytest.raises(SystemExit):
+        main(['--help'])
+    out = ' '.join(capsys.readouterr().out.split())
+    assert 'adaptive by default' in out and 'run the online-learning loop (Algorithm 1)' not in out

@@ -22,13 +22,17 @@ def _common(p):
 
 
 def _cmd_shape(args) -> int:
-    from ..app import Setup, format_iteration, shape_on_sim
+    from ..app import Setup, format_iteration, hidden_effects, shape_on_sim
+    from ..core.plugins import load_plugins
     from ..report.run_report import write_report
     if not args.sim:
         print('wind-shaper shape runs in-process on the simulated tunnel only: add --sim. '
               'For the rig, start the node graph (see README).', file=sys.stderr)
         return 2
+    load_plugins(args.plugin)  # and WIND_SHAPER_PLUGINS: terms a model file names, sim effects
     setup = Setup.load(args.config, args.disable)
+    effects = hidden_effects(args.hidden)
+    sim = setup.make_sim(seed=args.seed, effects=effects)  # checks the effects (fans named) first
     model = setup.load_model(args.model) if args.model else None
     names = setup.geometry.fans.names
     rule = {}
@@ -38,14 +42,17 @@ def _cmd_shape(args) -> int:
         rule['method'] = args.method
     print(f'target {args.target}; {setup.geometry.fans.n_fans} fans '
           f'({", ".join(n for n, e in zip(names, setup.geometry.fans.enabled) if not e) or "none"} '
-          f'disabled); {len(setup.geometry.key_points)} key points')
+          f'disabled); {len(setup.geometry.key_points)} key points'
+          + (f'; hidden effects: {", ".join(args.hidden)}' if args.hidden else ''))
     t0 = time.perf_counter()
     records, target = shape_on_sim(
         setup, args.target, iterations=args.iterations, seed=args.seed, model=model,
+        sim=sim,
         rule_overrides=rule or None, on_iteration=lambda r: print(format_iteration(r, names), flush=True))
     out = args.out or Path('reports') / time.strftime('shape-%Y%m%d-%H%M%S')
     meta = {'target': target.describe(), 'target_spec': args.target, 'seed': args.seed,
-            'disabled': args.disable, 'model': repr(model or setup.load_model()),
+            'disabled': args.disable, 'hidden_effects': [e.spec() for e in effects],
+            'model': repr(model or setup.load_model()),
             'config_dir': str(setup.config_dir), 'update': {**dict(setup.shaping.update or {}), **rule},
             'wall_time_s': round(time.perf_counter() - t0, 3)}
     write_report(out, records, setup.geometry, meta, u_max=setup.shaping.u_max)
@@ -74,7 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='wind-shaper', description=__doc__.split('\n')[0])
     sub = parser.add_subparsers(dest='command', required=True)
 
-    p = sub.add_parser('shape', help='run the online-learning loop (Algorithm 1)')
+    p = sub.add_parser('shape', help='run the online-learning loop on the simulated tunnel (update '
+                                     'rule from shaping.yaml: adaptive by default, --method paper '
+                                     'for Algorithm 1)')
     _common(p)
     p.add_argument('--sim', action='store_true', help='use the built-in simulated tunnel')
     p.add_argument('--target', default='parabolic',
@@ -84,6 +93,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--method', choices=('adaptive', 'paper'), default=None,
                    help='update rule (default: shaping.yaml); paper = Algorithm 1 exactly')
     p.add_argument('--model', type=Path, default=None, help='model file (default: config/model.yaml)')
+    p.add_argument('--hidden', action='append', default=[], metavar='EFFECT[:k=v,...]',
+                   help='switch on a simulator hidden effect, e.g. weak_fan:fan=HM2,gain=0.8 or '
+                        'tilted_fan:fan=LM2,shift=0.04/0 (as `model diagnose --sim --hidden`); repeat '
+                        'for more')
+    p.add_argument('--plugin', action='append', default=[], metavar='FILE.py|MODULE',
+                   help='import your own model terms (or simulator effects) first, e.g. for a model '
+                        'file naming a term kind of yours; repeat for more (or list them in '
+                        'WIND_SHAPER_PLUGINS)')
     p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/shape-<time>)')
     p.set_defaults(func=_cmd_shape)
 

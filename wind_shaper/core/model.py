@@ -471,7 +471,16 @@ def term_from_dict(spec: Mapping, fans: FanArray) -> Term:
         from . import effects  # noqa: F401
         cls = TERMS.get(kind)
     if cls is None:
-        raise ModelFileError(f'unknown model term kind {kind!r}; known kinds: {sorted(TERMS)}')
+        # A kind of the user's own: the plugins listed in WIND_SHAPER_PLUGINS may define it.
+        from .plugins import HOW_TO_LOAD, load_plugins
+        try:
+            load_plugins(env=True)
+        except ConfigError as exc:
+            raise ModelFileError(f'model term kind {kind!r} is not known yet and {exc}') from None
+        cls = TERMS.get(kind)
+    if cls is None:
+        raise ModelFileError(f'unknown model term kind {kind!r} (known kinds: {sorted(TERMS)}); if it is '
+                             f'a term of your own, {HOW_TO_LOAD}')
     try:
         return cls(fans, **spec)
     except (TypeError, ValueError) as exc:  # ConfigError is a ValueError too
