@@ -3,6 +3,7 @@ the whole way through a bag (record sweeps, diagnose from the bag, add the effec
 import json
 
 import pytest
+import yaml
 
 from wind_shaper.cli.main import main
 
@@ -67,6 +68,53 @@ def test_fit_and_compare_write_their_reports(tmp_path, capsys):
 def test_bad_input_is_named(argv, message, capsys, tmp_path):
     assert main(argv + ['--sweeps', '3', '--samples', '60', '--out', str(tmp_path / 'o')]) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_readme_steps_on_the_simulator(tmp_path, capsys):
+    """The README's steps: diagnose the weak fan, add it, shape the same tunnel (--hidden) with the
+    improved model: it tracks better at k = 1 than the reference it started from. Adding the same
+    effect on a tunnel without it shows the refitted value (gain about 1) and claims no drop below
+    the noise level."""
+    weak = ['--sim', '--hidden', 'weak_fan:fan=HM2,gain=0.8']
+    diag, improved = tmp_path / 'diag-sim', tmp_path / 'improved.yaml'
+    assert main(['model', 'diagnose', *weak, '--out', str(diag)]) == 0
+    assert _summary(diag)['findings'][0]['candidate'] == 'fan_gain[HM2]'
+    assert main(['model', 'add', *weak, '--from-diagnosis', str(diag / 'summary.json'), '--save', str(improved),
+                 '--out', str(tmp_path / 'add')]) == 0
+    printed = capsys.readouterr().out
+    assert 'added fan_gain[HM2] with gain 0.8' in printed and '% lower' in printed
+    k1 = {}
+    for label, model in (('improved', improved), ('reference', 'config/reference.yaml')):
+        out = tmp_path / label
+        assert main(['shape', '--target', 'gaussian@HM2', '--iterations', '1', '--model', str(model),
+                     *weak, '--out', str(out)]) == 0
+        k1[label] = json.loads((out / 'run.json').read_text())['iterations'][1]['true_rmse_N']
+    assert k1['improved'] < k1['reference'] - 0.01, k1
+
+    # the same addition on a tunnel without the weak fan: refitted, not the diagnosis's 0.81
+    add = tmp_path / 'add-none'
+    assert main(['model', 'add', '--sim', '--from-diagnosis', str(diag / 'summary.json'),
+                 '--save', str(tmp_path / 'none.yaml'), '--out', str(add)]) == 0
+    printed = capsys.readouterr().out
+    doc = _summary(add)
+    gain = doc['added_parameters'][0]['fitted']['gain']
+    assert gain['value'][0] == pytest.approx(1.0, abs=0.05) and 0 < gain['std'][0] < 0.05
+    assert doc['added'][0] == f'fan_gain[HM2] with gain {gain["value"][0]:.3f} ± {gain["std"][0]:.3f}'
+    assert doc['below_noise_level'] and '% lower' not in printed and 'below the noise level' in printed
+    assert f'Added: {doc["added"][0]}' in (add / 'report.md').read_text()
+    saved = yaml.safe_load((tmp_path / 'none.yaml').read_text())['added'][0]
+    assert saved['effect'] == 'fan_gain[HM2]' and saved['fitted (1 sigma)']['gain'] == gain
+
+
+def test_adding_from_a_diagnosis_that_found_nothing_says_so(tmp_path, capsys):
+    summary = tmp_path / 'summary.json'
+    summary.write_text(json.dumps({'command': 'diagnose', 'verdict': 'explained', 'findings': []}))
+    assert main(['model', 'add', '--sim', '--sweeps', '3', '--samples', '60', '--from-diagnosis', str(summary),
+                 '--out', str(tmp_path / 'o')]) == 2
+    err = capsys.readouterr().err
+    assert f'the diagnosis in {summary} found no effect to add' in err and 'or --from-diagnosis' not in err
+    assert not (tmp_path / 'o').exists()
 
 
 @pytest.mark.slow

@@ -7,8 +7,6 @@ writes a report folder (report.html, report.md, PNGs, summary.json).
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import sys
 import time
@@ -20,25 +18,11 @@ REFERENCE_FILE = 'reference.yaml'
 
 
 def _load_plugins(specs) -> list:
-    """Import each ``--plugin`` (a Python file or a module name); return the candidate families
-    they offer (a module-level ``FAMILIES`` list)."""
-    families = []
-    for spec in specs or ():
-        path = Path(spec)
-        if path.suffix == '.py':
-            if not path.is_file():
-                raise WindShaperError(f'plugin {path} does not exist')
-            mod_spec = importlib.util.spec_from_file_location(f'wind_shaper_plugin_{path.stem}', path)
-            module = importlib.util.module_from_spec(mod_spec)
-            sys.modules[mod_spec.name] = module
-            mod_spec.loader.exec_module(module)
-        else:
-            try:
-                module = importlib.import_module(spec)
-            except ImportError as exc:
-                raise WindShaperError(f'cannot import plugin {spec!r}: {exc}') from None
-        families += list(getattr(module, 'FAMILIES', []))
-    return families
+    """Import each ``--plugin`` (a Python file or a module name) and those listed in
+    WIND_SHAPER_PLUGINS (``core.plugins``); return the candidate families they offer (a
+    module-level ``FAMILIES`` list)."""
+    from ..core.plugins import load_plugins, plugin_families
+    return plugin_families(load_plugins(specs))
 
 
 def _setup(args):
@@ -47,15 +31,8 @@ def _setup(args):
 
 
 def _hidden(args):
-    from ..sim import make_effect
-    from ..workbench.commands import parse_spec
-    out = []
-    for text in args.hidden or ():
-        name, params = parse_spec(text)
-        if 'shift' in params and isinstance(params['shift'], list):
-            params['shift'] = tuple(params['shift'])
-        out.append(make_effect(name, **params))
-    return out
+    from ..app import hidden_effects
+    return hidden_effects(args.hidden)
 
 
 def _sim(setup, args, seed=None):
@@ -179,15 +156,19 @@ def _cmd_diagnose(args) -> int:
 
 def _cmd_add(args) -> int:
     from ..workbench.closed_loop import compare_closed_loop
-    from ..workbench.commands import add_command
+    from ..workbench.commands import _added_text, add_command
     library = _library(args)
     setup = _setup(args)
     path = _model_path(setup, args.model)
     model = setup.load_model(path)
     additions = list(args.effect or [])
     if args.from_diagnosis:
-        doc = json.loads(Path(args.from_diagnosis).read_text())
-        additions += [(f['candidate'], f['params']) for f in doc.get('findings', [])]
+        found = _diagnosis_findings(args.from_diagnosis)
+        if not found and not additions:
+            raise WindShaperError(f'nothing to add: the diagnosis in {args.from_diagnosis} found no effect '
+                                  f'to add; to add one anyway, name it with --effect NAME (a candidate '
+                                  f'such as fan_gain[HM2] or swirl, or a term kind)')
+        additions += found
     if not additions:
         raise WindShaperError('nothing to add: give --effect NAME (a candidate such as fan_gain[HM2] or '
                               'swirl, or a term kind) or --from-diagnosis <summary.json>')
@@ -205,14 +186,30 @@ def _cmd_add(args) -> int:
     save = args.save or (out / 'model.yaml')
     res = add_command(model, additions, data, setup.geometry, out, save=save, library=library,
                       closed_loop=loop if args.closed_loop else None, noise_sd=args.noise_sd)
-    print(f'held-out model error {res.before["model_rmse"]:.3f} N -> {res.after["model_rmse"]:.3f} N; '
-          f'new model written to {save}')
+    print(f'added {", ".join(_added_text(a) for a in res.added)} (refitted on the training sweeps)')
+    print(f'{res.change}; new model written to {save}')
     if res.closed_loop is not None:
         k = res.closed_loop.errors[next(iter(res.closed_loop.errors))].shape[1] - 1
         print('closed loop, true-field RMSE at iteration '
               f'{k}: ' + ', '.join(f'{lab} {v:.3f} N' for lab, v in res.closed_loop.at(k).items()))
     print(f'report: {out}/')
     return 0
+
+
+def _diagnosis_findings(path) -> list:
+    """[(candidate, params)] of the findings in a `model diagnose` summary.json."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise WindShaperError(f'cannot read --from-diagnosis {path}: {exc.strerror or exc}; give the '
+                              f'summary.json of a `wind-shaper model diagnose` report folder') from None
+    except ValueError as exc:
+        raise WindShaperError(f'--from-diagnosis {path} is not JSON ({exc}); give the summary.json of a '
+                              f'`wind-shaper model diagnose` report folder') from None
+    if not isinstance(doc, dict) or doc.get('command') != 'diagnose':
+        raise WindShaperError(f'--from-diagnosis {path} is not the summary.json of `wind-shaper model '
+                              f'diagnose`')
+    return [(f['candidate'], f['params']) for f in doc.get('findings', [])]
 
 
 # -- argument layer ---------------------------------------------------------------------------------

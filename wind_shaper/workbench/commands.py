@@ -7,21 +7,21 @@ made so that scripts and tests can use them directly.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..core.effects import Wrapper
+from ..core.effects import Wrapper, term_label, walk
 from ..core.geometry import TunnelGeometry
 from ..core.model import TERMS, Term
 from ..core.modelfile import save_model
 from .data import SweepSet, design_commands, from_sim
-from .diagnose import Diagnosis, fit_mask
+from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
 from .errors import CandidateError
 from .fitting import FitResult, fit_model
-from .library import Library, apply_candidate, candidate_for_hidden_effect, default_library
+from .library import Library, _pm, apply_candidate, candidate_for_hidden_effect, default_library
 from .metrics import HeldOut, evaluate
 from .report import (Report, plot_closed_loop, plot_fan_curves, plot_measured_vs_model,
                      plot_radial_angular, plot_ranking, plot_residual_maps)
@@ -194,14 +194,15 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
         rep.table(['hidden effect (simulator)', 'candidate', 'truth', 'fitted'], rows,
                   heading='Against the simulator\'s truth')
     for i, ranking in enumerate(d.rankings_):
-        rep.table(['rank', 'candidate', 'held-out model error [N]', 'drop', 'ΔBIC', 'parameters', 'verdict'],
-                  [[k + 1, t.candidate.name, _fmt(t.heldout_rmse), f'{100 * t.gain:.0f} %', f'{t.dbic:.0f}',
+        rep.table(['rank', 'candidate', 'held-out model error [N]', 'change', 'ΔBIC', 'parameters', 'verdict'],
+                  [[k + 1, t.candidate.name, _fmt(t.heldout_rmse), drop_text(t.gain), f'{t.dbic:+.0f}',
                     _short_params(t.params), 'reported' if t.passed and t in d.steps_ else
                     ('; '.join(t.reasons) or 'passes, not the best')] for k, t in enumerate(ranking[:15])],
-                  heading=f'Step {i + 1}: candidates ranked by held-out error')
+                  heading=f'Step {i + 1}: candidates in order of training BIC (lowest first): the refined '
+                          f'ones, then those only screened')
         before = d.baseline_rmse_ if i == 0 else d.steps_[i - 1].heldout_rmse
         rep.figure(f'ranking_step{i + 1}', plot_ranking(ranking, before),
-                   f'held-out model error with each candidate at step {i + 1}')
+                   f'held-out model error with each candidate at step {i + 1} (in the table\'s order)')
     every = data.fit_data(d.cell)  # all sweeps: the structure needs many commands
     analyses = {'before': analyse_residuals(d.baseline_.model, every, geometry)}
     if d.steps_:
@@ -249,23 +250,82 @@ def model_with_additions(model: Term, additions: Sequence, geometry: TunnelGeome
     """``model`` extended by each addition: a library candidate name (``fan_gain[HM2]``,
     ``swirl``) or ``(name, params)``, or a registered term kind (``(kind, params)``; a
     ``Wrapper`` subclass wraps the model, any other term is added with ``+``)."""
+    return _apply_additions(model, additions, geometry, library)[0]
+
+
+def _apply_additions(model: Term, additions: Sequence, geometry: TunnelGeometry,
+                     library: Library | None = None) -> tuple[Term, list]:
+    """(extended model, [(name, start params, term label)] per addition): see
+    ``model_with_additions``. The label finds the added term in the refitted model."""
     library = library or default_library()
+    added = []
     for item in additions:
         name, params = (parse_spec(item) if isinstance(item, str) else (item[0], dict(item[1])))
         cands = {c.name: c for c in library.candidates(model, geometry)}
         if name in cands:
             model = apply_candidate(model, cands[name], **params)
+            added.append((name, params, cands[name].label))
             continue
         cls = TERMS.get(name)
         if cls is None:
             raise CandidateError(f'{name!r} is neither a candidate for this model ({sorted(cands)}) nor a '
                                  f'registered term kind ({sorted(TERMS)}); a term of your own must be '
-                                 f'imported first (--plugin)')
+                                 f'imported first (--plugin FILE or WIND_SHAPER_PLUGINS)')
         try:
-            model = cls(model.fans, model, **params) if issubclass(cls, Wrapper) else model + cls(model.fans, **params)
+            term = cls(model.fans, model, **params) if issubclass(cls, Wrapper) else cls(model.fans, **params)
         except TypeError as exc:
             raise CandidateError(f'cannot build {name!r} with {params}: {exc}') from None
-    return model
+        model = term if issubclass(cls, Wrapper) else model + term
+        added.append((name, params, term_label(term)))
+    return model, added
+
+
+def _added_parameters(fit: FitResult, added: list) -> list[dict]:
+    """Each addition's own parameters as refitted in ``fit``: [{'effect', 'start', 'fitted':
+    {parameter: {'value', 'std'}}}] (free parameters only; values and 1-sigma as lists for
+    vector parameters)."""
+    out = []
+    for name, start, label in added:
+        node = next((n for n in walk(fit.model) if term_label(n) == label), None)
+        fitted = {}
+        if node is not None:
+            std = candidate_std(fit, label)
+            values = node.get_params()
+            for h in node._free():
+                v = np.atleast_1d(np.asarray(values[h.name], float))
+                e = np.atleast_1d(np.asarray(std.get(h.name, [np.nan] * len(v)), float))
+                fitted[h.name] = {'value': [round(float(x), 6) for x in v],
+                                  'std': [round(float(x), 6) for x in e]}
+        out.append({'effect': name, 'start': {k: (np.asarray(v, float).round(6).tolist()
+                                                  if not isinstance(v, str) else v)
+                                              for k, v in start.items()},
+                    'fitted': fitted})
+    return out
+
+
+def _added_text(entry: dict) -> str:
+    """``fan_gain[HM2] with gain 1.031 ± 0.012``: an addition with its refitted parameters."""
+    parts = []
+    for pname, vs in entry['fitted'].items():
+        cells = [_pm(v, s, '{:.3f}') for v, s in zip(vs['value'], vs['std'])]
+        parts.append(f'{pname} ' + (cells[0] if len(cells) == 1 else '(' + ', '.join(cells) + ')'))
+    return entry['effect'] + (f' with {", ".join(parts)}' if parts else '')
+
+
+def _error_change(before: float, after: float, floor: float) -> tuple[str, bool]:
+    """The held-out model error before -> after in words, and whether the old model was already
+    below the noise level ``floor`` [N] (then no % drop is claimed: the sweeps cannot show one)."""
+    head = f'held-out model error {before:.3f} N -> {after:.3f} N'
+    if before < floor:
+        if after < floor:
+            return (f'{head}: both below the noise level ({floor:.3f} N), so these sweeps cannot '
+                    f'tell the two models apart (the old one already explains them)'), True
+        return f'{head}: the new model is worse (the old one was already below the noise level, ' \
+               f'{floor:.3f} N)', True
+    drop = 1 - after / before if before > 0 else 0.0
+    change = drop_text(drop) if abs(drop) >= 0.005 else 'unchanged'
+    at_floor = ', at the noise level' if after < floor else ''
+    return f'{head} ({change}{at_floor})', False
 
 
 @dataclass
@@ -275,6 +335,8 @@ class AddOutcome:
     after: dict
     closed_loop: object
     report: Path
+    change: str = ''            # the held-out model error before -> after, in words
+    added: list = field(default_factory=list)   # each addition with its refitted parameters
 
 
 def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: TunnelGeometry, out, *,
@@ -285,7 +347,7 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
     callable ``(models) -> LoopComparison`` (the CLI runs the simulator's shaping loop);
     noise_sd [N]: the measurement noise, when the sweeps are too short to estimate it."""
     data.check_fans(geometry.fans.names)
-    new = model_with_additions(model, additions, geometry, library)
+    new, added = _apply_additions(model, additions, geometry, library)
     train, test = data.split(test_fraction)
     fd = train.fit_data(cell)
     ho = HeldOut(test)
@@ -298,14 +360,28 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
                 'after': analyse_residuals(new_fit.model, tf, geometry)}
     rep = Report('Adding effects to the model')
     drop = 1 - after['model_rmse'] / before['model_rmse'] if before['model_rmse'] > 0 else 0.0
+    # the noise level: the diagnosis's materiality threshold (half the measurement noise per
+    # sample) or the resolution of the held-out error, whichever is larger
+    resolution = before.get('resolution', float('nan'))
+    noise_known = bool(np.isfinite(ho.noise_sd))
+    floor = max(0.5 * ho.noise_sd if noise_known else 0.0, resolution if np.isfinite(resolution) else 0.0)
+    change, below = _error_change(before['model_rmse'], after['model_rmse'], floor)
+    added_params = _added_parameters(new_fit, added)
+    added_text = ', '.join(_added_text(a) for a in added_params)
     rep.text(f'Data: {data.source}; trained on {", ".join(train.labels)}; held out {", ".join(test.labels)}.\n\n'
-             f'Added: {", ".join(map(str, additions))}.\n\nNew model: {new_fit.model!r}')
+             f'Added: {added_text}, refitted on these training sweeps (1 sigma).\n\n'
+             f'{change[0].upper() + change[1:]}. '
+             + (f'The noise level is {floor:.3f} N: half the measurement noise ({ho.noise_sd:.3f} N per '
+                f'sample) or the resolution of the held-out model error, whichever is larger.'
+                if noise_known else 'The measurement noise is unknown (give --noise-sd).')
+             + f'\n\nNew model: {new_fit.model!r}')
     rep.table(['', 'held-out model error [N]', 'held-out RMSE [N]', 'R²', 'largest error [N]', 'training BIC'],
               [['before', _fmt(before['model_rmse']), _fmt(before['raw'].rmse), _fmt(before['raw'].r2, 4),
                 _fmt(before['raw'].max_error), f'{old_fit.bic:.0f}'],
                ['after', _fmt(after['model_rmse']), _fmt(after['raw'].rmse), _fmt(after['raw'].r2, 4),
                 _fmt(after['raw'].max_error), f'{new_fit.bic:.0f}']],
-              heading=f'Before and after: held-out model error {100 * drop:.0f} % lower')
+              heading='Before and after: ' + ('the old model was already below the noise level' if below
+                                               else f'held-out model error {drop_text(drop)}'))
     params = []
     for n, v, s in zip(new_fit.names, new_fit.theta, new_fit.theta_std):
         if n not in old_fit.names:
@@ -321,12 +397,15 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
                   [[k] + [_fmt(float(np.median(e[:, k]))) for e in loop.errors.values()]
                    for k in range(next(iter(loop.errors.values())).shape[1])])
     if save is not None:
-        save_model(save, new_fit.model, fitted_from=data.source, added=[str(a) for a in additions],
+        save_model(save, new_fit.model, fitted_from=data.source,
+                   added=[{'effect': a['effect'], 'fitted (1 sigma)': a['fitted']} for a in added_params],
                    rmse_N=round(new_fit.rmse, 5), heldout_model_rmse_N=round(after['model_rmse'], 5),
                    fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'))
         rep.text(f'New model written to {save}; give it to the loop with `wind-shaper shape --model {save}`.',
                  heading='Model file')
-    rep.summary = {'command': 'add', 'data': data.source, 'added': [str(a) for a in additions],
+    rep.summary = {'command': 'add', 'data': data.source, 'added': [_added_text(a) for a in added_params],
+                   'added_parameters': added_params, 'change': change, 'noise_level_N': floor,
+                   'below_noise_level': below,
                    'before': {'model': repr(old_fit.model), 'heldout_model_rmse_N': before['model_rmse'],
                               'heldout_raw': before['raw'].to_json(), 'bic': old_fit.bic},
                    'after': {'model': repr(new_fit.model), 'heldout_model_rmse_N': after['model_rmse'],
@@ -336,4 +415,4 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
                    'residual_before': analyses['before'].to_json(), 'residual_after': analyses['after'].to_json(),
                    'closed_loop': loop.to_json() if loop is not None else None,
                    'saved_model': str(save) if save else None}
-    return AddOutcome(new_fit.model, before, after, loop, rep.write(out))
+    return AddOutcome(new_fit.model, before, after, loop, rep.write(out), change, added_params)

@@ -26,6 +26,13 @@ already explains, the held-out error is already small against the noise and noth
 ("explained"). When the error is material and no candidate passes, the verdict is "unexplained"
 and the report shows the residual's structure instead of forcing a term.
 
+The data must vary the commands: ``SweepSet.command_spread`` (per fan, the interquartile range of
+its command over the sweeps; the median over the enabled fans) below ``min_spread`` (0.10, i.e.
+10 % PWM) means the sweeps were taken at nearly one operating point (e.g. a converged shaping
+run). There the held-out sweeps share the training sweeps' commands, so a term that merely
+patches the residual at that operating point passes the held-out test too; no candidate is then
+reported, and the verdict carries a warning saying what data to record instead.
+
 Reported parameters come from a refit on every training cell; their uncertainty is the larger of the
 Gauss-Newton standard error and a delete-one-sweep jackknife (sweeps are the independent units).
 """
@@ -45,7 +52,7 @@ from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
 
-__all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std']
+__all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text']
 
 _HELD = re.compile(r'(^|__)thrust(_higher|_lower)?\[0\]$')
 
@@ -114,17 +121,20 @@ class Diagnosis:
     test_fraction / test: the held-out split (see ``SweepSet.split``); min_gain, min_dbic,
     min_z, material: the guard; max_effects: most effects added; refine: candidates refined
     per step; max_nfev: cap on a refit's iterations; noise_sd [N]: the measurement noise per
-    sample, when the held-out sweeps are too short to estimate it (they must revisit places).
+    sample, when the held-out sweeps are too short to estimate it (they must revisit places);
+    min_spread [fraction of full PWM]: the least command spread (``SweepSet.command_spread``)
+    at which findings are reported (0 switches the check off).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
                  test_fraction: float = 1 / 3, test=None, min_gain: float = 0.2,
                  min_dbic: float = 10.0, min_z: float = 3.0, material: float = 0.5,
                  max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
-                 noise_sd: float | None = None):
+                 noise_sd: float | None = None, min_spread: float = 0.10):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
+        self.min_spread = min_spread
         self.max_effects, self.refine, self.max_nfev = max_effects, refine, max_nfev
         self.noise_sd = noise_sd
 
@@ -177,13 +187,15 @@ class Diagnosis:
 
     def _guard(self, t: Trial, current_rmse: float) -> None:
         reasons = []
+        if self.low_spread_:
+            reasons.append('not identifiable: the sweeps\' commands barely vary (see the verdict)')
         if current_rmse < self.material * self.noise_sd_:
             reasons.append(f'nothing material to explain (held-out model error {current_rmse:.3f} N '
                            f'< {self.material:.2f} x noise {self.noise_sd_:.3f} N)')
         if t.gain < self.min_gain:
-            reasons.append(f'held-out error falls only {100 * t.gain:.0f} % (< {100 * self.min_gain:.0f} %)')
+            reasons.append(f'held-out error {_change_text(t.gain)} (needs to fall >= {100 * self.min_gain:.0f} %)')
         if t.dbic > -self.min_dbic:
-            reasons.append(f'BIC falls only {-t.dbic:.1f} (< {self.min_dbic:g})')
+            reasons.append(f'BIC {_bic_text(t.dbic)} (needs to fall >= {self.min_dbic:g})')
         z = _z_score(t.params, t.std, t.candidate.null)
         if z is not None and z < self.min_z:
             reasons.append(f'parameter only {z:.1f} standard errors from no effect (< {self.min_z:g})')
@@ -197,6 +209,8 @@ class Diagnosis:
             raise FitError(f'the model is for {model.n_fans} fans, the tunnel has {geometry.fans.n_fans}')
         library = self.library or default_library()
         self.geometry_ = geometry
+        self.command_spread_ = data.command_spread(geometry.fans.enabled)
+        self.low_spread_ = self.command_spread_['median'] < self.min_spread
         self.train_sweeps_, self.test_sweeps_ = data.split(self.test_fraction, self.test)
         self.train_ = self.train_sweeps_.fit_data(self.cell)
         self.screen_ = self.train_.subset(slice(None, None, 2))  # screening needs only a ranking
@@ -292,17 +306,40 @@ class Diagnosis:
         """The first step's ranked table (every candidate against the refitted model)."""
         return self.rankings_[0] if self.rankings_ else []
 
+    def spread_warning(self) -> str:
+        """What is wrong with data whose commands barely vary, and what to record instead
+        ('' when they vary enough)."""
+        if not self.low_spread_:
+            return ''
+        return (f'Warning: these sweeps were taken at nearly the same fan commands (command spread '
+                f'{100 * self.command_spread_["median"]:.1f} % PWM: the median over the fans of the '
+                f'interquartile range of each fan\'s command across the sweeps; the diagnosis wants at '
+                f'least {100 * self.min_spread:.0f} %), as in a shaping run that has converged. On such '
+                f'data per-fan effects (a fan\'s gain, width, landing point) are poorly identified: a '
+                f'held-out sweep at the same commands cannot tell an effect from a patch of the residual '
+                f'at this one operating point, so no finding is reported. Record instead 8-12 sweeps of '
+                f'~1000 samples at varied commands: each fan spread over 0-90 % PWM independently of the '
+                f'others, a few sweeps with single fans low or off (the design `--sim` uses; see '
+                f'docs/workbench.md, "Data").')
+
     def summary(self) -> str:
-        """The verdict in plain words."""
+        """The verdict in plain words (with the warning about data whose commands barely vary)."""
+        warning = self.spread_warning()
+        tail = f'\n\n{warning}' if warning else ''
         if self.verdict_ == 'explained':
             return (f'Nothing to report: the model already explains these sweeps (held-out model error '
-                    f'{self.baseline_rmse_:.3f} N against measurement noise {self.noise_sd_:.3f} N).')
+                    f'{self.baseline_rmse_:.3f} N against measurement noise {self.noise_sd_:.3f} N).{tail}')
         if self.verdict_ == 'unexplained':
+            if self.low_spread_:
+                return (f'No effect can be identified on these sweeps: the held-out model error is '
+                        f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N), but the sweeps\' '
+                        f'commands barely vary. See the residual\'s structure below.{tail}')
             best = self.ranking_[0] if self.ranking_ else None
-            tail = (f' The best candidate, {best.candidate.title}, lowers it by only '
-                    f'{100 * max(best.gain, 0):.0f} %.' if best else '')
+            lowers = (f'lowers it by only {100 * best.gain:.0f} %' if best is not None and best.gain >= 0.005
+                      else 'does not lower it')
+            more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
             return (f'No candidate explains the residual: the held-out model error stays at '
-                    f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{tail} '
+                    f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{more} '
                     f'See the residual\'s structure below.')
         lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(self.steps_)]
         return (f'Found {len(self.steps_)} effect(s); held-out model error '
@@ -322,8 +359,39 @@ class Diagnosis:
             'findings': [t.to_json() for t in self.steps_],
             'rankings': [[t.to_json() for t in r] for r in self.rankings_],
             'guard': {'min_gain': self.min_gain, 'min_dbic': self.min_dbic, 'min_z': self.min_z,
-                      'material': self.material},
+                      'material': self.material, 'min_spread': self.min_spread},
+            'command_spread': {'median': round(self.command_spread_['median'], 4),
+                               'per_fan': {k: round(v, 4) for k, v in self.command_spread_['per_fan'].items()},
+                               'too_little': bool(self.low_spread_)},
+            'warnings': [w for w in (self.spread_warning(),) if w],
         }
+
+
+def _change_text(gain: float) -> str:
+    """A relative drop of the held-out error in words: 'falls only 12 %', 'rises 912 %'."""
+    pct = 100 * gain
+    if pct <= -0.5:
+        return f'rises {-pct:.0f} %'
+    if pct < 0.5:
+        return 'does not change'
+    return f'falls only {pct:.0f} %'
+
+
+def _bic_text(dbic: float) -> str:
+    """A BIC change in words: 'falls only 4.1', 'rises 15.0'."""
+    if dbic >= 0.05:
+        return f'rises {dbic:.1f}'
+    if dbic > -0.05:
+        return 'does not change'
+    return f'falls only {-dbic:.1f}'
+
+
+def drop_text(gain: float) -> str:
+    """The held-out error's relative change for a table cell: '76 % lower', '912 % higher'."""
+    pct = 100 * gain
+    if abs(pct) < 0.5:
+        return '0 %'
+    return f'{pct:.0f} % lower' if pct > 0 else f'{-pct:.0f} % higher'
 
 
 def _nodes(model):

@@ -188,7 +188,8 @@ def plot_measured_vs_model(pred, y, per_sweep: dict):
 
 
 def plot_ranking(trials, baseline_rmse: float, top: int = 12):
-    """Held-out model error with each candidate (best first) against the model without."""
+    """Held-out model error with each candidate, in the ranking's order (training BIC, refined
+    candidates first), against the model without."""
     trials = list(trials)[:top]
     fig, ax = plt.subplots(figsize=(8, 0.35 * len(trials) + 1.2))
     y = np.arange(len(trials))[::-1]

@@ -12,6 +12,7 @@ import pytest
 from wind_shaper.sim.effects import HiddenEffect
 from wind_shaper.sim.physics import FlatTop, JetGroup
 from wind_shaper.workbench.closed_loop import compare_closed_loop
+from wind_shaper.workbench.diagnose import Diagnosis
 from wind_shaper.workbench.library import candidate_for_hidden_effect
 
 #: Stated tolerances: |fitted - truth| per parameter (per element for vectors; angles in rad).
@@ -120,3 +121,40 @@ def test_the_ranking_table_and_json_are_complete(diagnosed):
     first = doc['rankings'][0][0]
     assert first['passed'] and first['heldout_gain'] > 0.5 and first['dbic'] < -100
     assert set(first['std']) == {'gain'}
+
+
+#: The commands of a `wind-shaper shape --sim --target parabolic` run (13 sweeps): after the first
+#: two steps every fan stays within about 1 % PWM. With the command-spread check off
+#: (``Diagnosis(min_spread=0)``) the diagnosis "finds" an elongated LM2 jet on these sweeps of the
+#: simulated tunnel (seed 0) although it has no hidden effect.
+CONVERGED = [[0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5], [0.53, 0.466, 0.555, 0.483, 0.522, 0.527, 0.15],
+             [0.539, 0.458, 0.55, 0.484, 0.525, 0.526, 0.052], [0.547, 0.463, 0.544, 0.484, 0.524, 0.528, 0.0],
+             [0.547, 0.457, 0.553, 0.476, 0.523, 0.532, 0.0], [0.545, 0.464, 0.545, 0.483, 0.517, 0.535, 0.0],
+             [0.544, 0.465, 0.544, 0.484, 0.516, 0.537, 0.0], [0.543, 0.465, 0.544, 0.484, 0.516, 0.537, 0.0],
+             [0.543, 0.465, 0.544, 0.484, 0.516, 0.538, 0.0], [0.544, 0.46, 0.548, 0.48, 0.518, 0.536, 0.0],
+             [0.543, 0.461, 0.547, 0.481, 0.517, 0.537, 0.0], [0.544, 0.46, 0.548, 0.481, 0.518, 0.537, 0.0],
+             [0.544, 0.46, 0.548, 0.48, 0.518, 0.536, 0.0]]
+
+
+def test_sweeps_at_one_operating_point_report_nothing_and_say_what_to_record(sim_data, wb_setup, reference):
+    from wind_shaper.workbench.data import from_sim
+    varied, _ = sim_data()
+    assert varied.command_spread(wb_setup.geometry.fans.enabled)['median'] > 0.3  # the Latin hypercube
+    data = from_sim(wb_setup.make_sim(seed=0), np.array(CONVERGED), n_samples=1000, source='converged run')
+    d = Diagnosis().fit(reference, data, wb_setup.geometry)
+    assert d.command_spread_['median'] < 0.02 and d.low_spread_
+    assert d.steps_ == [] and d.findings_ == []
+    text = d.summary()
+    assert 'nearly the same fan commands' in text and 'poorly identified' in text
+    assert 'Record instead' in text and 'independently' in text
+    doc = d.to_json()
+    assert doc['command_spread']['too_little'] and doc['warnings']
+    assert all(any('barely vary' in r for r in t.reasons) for t in d.ranking_)
+
+
+def test_guard_texts_read_naturally_for_rises():
+    from wind_shaper.workbench.diagnose import _bic_text, _change_text, drop_text
+    assert _change_text(-9.12) == 'rises 912 %' and _change_text(0.12) == 'falls only 12 %'
+    assert _change_text(-0.001) == 'does not change'
+    assert _bic_text(15.0) == 'rises 15.0' and _bic_text(-4.1) == 'falls only 4.1'
+    assert drop_text(0.76) == '76 % lower' and drop_text(-9.12) == '912 % higher' and drop_text(-0.001) == '0 %'
