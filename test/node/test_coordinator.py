@@ -563,7 +563,10 @@ def test_cli_set_model_swaps_the_prior_and_keeps_it_on_a_bad_file(graph, capsys,
     broken = tmp_path / 'broken.yaml'
     broken.write_text('wind_shaper_model: 1\nmodel: {kind: nope}\n')
     assert cli(['set-model', str(broken)]) == 1
-    assert 'the old one stays' in capsys.readouterr().err and 'sigma=0.2' in repr(node._model)
+    err = capsys.readouterr().err
+    assert 'the old one stays' in err and 'sigma=0.2' in repr(node._model)
+    assert err.count('model refused') == 1, err  # said once, with the reason
+    assert "unknown model term kind 'nope'" in err and '--plugin FILE or WIND_SHAPER_PLUGINS' in err
     assert cli(['set-model', str(tmp_path / 'missing.yaml')]) == 2
     assert 'cannot read the model file' in capsys.readouterr().err
 

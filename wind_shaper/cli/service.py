@@ -237,8 +237,8 @@ def _cmd_set_model(args) -> int:
         if answer is None:
             print(f'the coordinator did not answer within {args.wait:g} s', file=sys.stderr)
             return 2
-        if not answer.success:
-            print(f'model refused, the old one stays: {answer.message}', file=sys.stderr)
+        if not answer.success:  # the coordinator says why, and that the old model stays
+            print(answer.message, file=sys.stderr)
             return 1
         print(f'the coordinator now uses {args.model}: {answer.message}')
         return 0

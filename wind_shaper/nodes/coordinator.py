@@ -656,7 +656,7 @@ class CoordinatorNode(Node):
             model = self._model_from_text(text, source)
         except WindShaperError as exc:
             response.success = False
-            response.message = f'model refused, the prior stays {self._model!r}: {exc}'
+            response.message = f'model refused, the old one stays: {exc} (prior in use: {self._model!r})'
             self.get_logger().warning(response.message)
             return response
         self._store.save_model_text(text)
