@@ -38,6 +38,19 @@ def _stop(process, grace_s=5.0):
 
 
 _domain_counter = itertools.count()
+_BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
+
+
+def next_domain_id() -> str:
+    """A ROS_DOMAIN_ID no other test of this run has had (the run's base id plus a counter,
+    within 1..100): whatever a test leaves behind cannot reach the next."""
+    return str((_BASE_DOMAIN + next(_domain_counter)) % 100 + 1)
+
+
+@pytest.fixture(scope='session')
+def new_domain_id():
+    """``new_domain_id() -> str``: next_domain_id for fixtures wider than one test."""
+    return next_domain_id
 
 
 @pytest.fixture
@@ -47,9 +60,7 @@ def ros_env(monkeypatch):
     Each test gets its own ROS_DOMAIN_ID (the run's base id plus a counter, within 1..100), so
     nothing an earlier test left in DDS (participants, in-process streams still winding down)
     reaches it."""
-    base = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
-    domain_id = str((base + next(_domain_counter)) % 100 + 1)
-    monkeypatch.setenv('ROS_DOMAIN_ID', domain_id)
+    monkeypatch.setenv('ROS_DOMAIN_ID', next_domain_id())
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)  # deprecated; conflicts with the above
     return dict(os.environ)

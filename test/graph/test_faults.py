@@ -92,11 +92,10 @@ def lost_rows(before: np.ndarray, after: np.ndarray) -> int:
 
 
 @pytest.fixture(scope='module')
-def rig(tmp_path_factory):
+def rig(tmp_path_factory, new_domain_id):
     root = tmp_path_factory.mktemp('faults')
-    base = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=str((base + 50) % 100 + 1))   # away from the per-test ids
+               ROS_DOMAIN_ID=new_domain_id())   # one no other test gets
     env.pop('ROS_LOCALHOST_ONLY', None)
     r = Rig(env, root)
     try:

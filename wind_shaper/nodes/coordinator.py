@@ -468,8 +468,9 @@ class CoordinatorNode(Node):
             self._boundary(deadline)
 
             # 2. sweeping
+            # resend is safe here: begin only clears buffers, and no sweep has started yet
             begin = await self._call(self._begin_client, Trigger.Request(), 'field_estimator',
-                                     p.service_timeout_s, deadline)
+                                     p.service_timeout_s, deadline, resend=True)
             if not begin.success:
                 raise _Stop(IterationStatus.STATE_FAILED, f'begin_sweep refused: {begin.message}')
             with self._lock:

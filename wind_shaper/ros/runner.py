@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import signal
 import sys
-import threading
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -30,12 +29,20 @@ from rclpy.task import Future
 from ..core.errors import WindShaperError
 
 
-_stop_requested = threading.Event()
+class _StopFlag:
+    """Set from a signal handler: a plain attribute, no lock. (A threading.Event takes a lock
+    in set(); a second signal landing while the first handler holds it deadlocks the process:
+    seen as a field_estimator that outlived its supervisor, all threads asleep on futexes.)"""
+
+    requested = False
+
+
+_stop = _StopFlag()
 
 
 def _request_stop(signum, frame):
     # SIGINT and SIGTERM (e.g. from the supervisor) take the same clean path.
-    _stop_requested.set()
+    _stop.requested = True
 
 
 def run(node_cls, args=None, *, executor: str = 'single') -> int:
@@ -43,7 +50,7 @@ def run(node_cls, args=None, *, executor: str = 'single') -> int:
     if executor not in ('single', 'events'):
         raise ValueError(f"executor must be 'single' or 'events', not {executor!r}")
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    _stop_requested.clear()
+    _stop.requested = False
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
     node = ex = None
@@ -58,7 +65,7 @@ def run(node_cls, args=None, *, executor: str = 'single') -> int:
         ex.add_node(node)
         # spin() waits in C++ and would never let the Python signal handlers run.
         never = Future()
-        while rclpy.ok() and not _stop_requested.is_set():
+        while rclpy.ok() and not _stop.requested:
             ex.spin_until_future_complete(never, timeout_sec=0.2)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -1,0 +1,47 @@
+"""The node runner's signal handler: safe when a second signal interrupts the first.
+
+A Python signal handler runs between two bytecodes of the main thread, so a second SIGTERM or
+SIGINT can run it again inside the first. A handler that takes a lock (threading.Event.set
+does) then waits for itself forever: seen as a field_estimator that outlived its supervisor,
+every thread asleep on a futex, the stack five handlers deep."""
+import subprocess
+import sys
+
+import pytest
+
+pytest.importorskip('rclpy')
+
+# Re-enter the handler at every call it makes, as a signal landing there would.
+REENTER = '''
+import sys
+from wind_shaper.ros import runner
+
+depth = [0]
+
+def reenter(frame, event, arg):
+    if event in ('call', 'c_call') and depth[0] == 0:
+        depth[0] += 1
+        try:
+            runner._request_stop(15, None)
+        finally:
+            depth[0] -= 1
+
+def handler_under_signals():
+    sys.setprofile(reenter)
+    try:
+        runner._request_stop(2, None)
+    finally:
+        sys.setprofile(None)
+
+handler_under_signals()
+print('handled', runner._stop.requested, flush=True)
+'''
+
+
+def test_the_stop_handler_survives_a_signal_inside_itself():
+    try:
+        done = subprocess.run([sys.executable, '-c', REENTER], capture_output=True, text=True,
+                              timeout=20)
+    except subprocess.TimeoutExpired:
+        pytest.fail('the signal handler deadlocked when re-entered (it takes a lock)')
+    assert done.returncode == 0 and 'handled True' in done.stdout, done.stderr
