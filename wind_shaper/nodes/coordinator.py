@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +47,7 @@ from ..core.errors import ConfigError, WindShaperError
 from ..core.field import FieldEstimate, closest_samples
 from ..core.modelfile import load_model, model_from_text
 from ..core.runstore import IterationData, RunInfo, RunStore
-from ..core import update as core_update
-from ..core.update import UpdateInput
+from ..core.update import PastIteration, UpdateInput
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_from_msg, fan_command, pwm_from_command, sweep_from_msg
@@ -588,12 +587,9 @@ class CoordinatorNode(Node):
         with self._lock:
             target_values, spec, model = self._target.values(kp), self._target_spec, self._model
         J = model.jacobian(U, kp)  # the rule's search direction and the prediction below
-        known = {f.name for f in fields(UpdateInput)}
-        extra = {name: value for name, value in (
-            ('model', model), ('key_points', kp), ('target', target_values),
-            ('history', tuple(self._past))) if name in known}
         step = rule.step(UpdateInput(k, U.copy(), target_values - mean, J, self._enabled, std,
-                                     **extra))
+                                     model=model, key_points=kp, target=target_values,
+                                     history=tuple(self._past)))
         U_next = self._bounds.project(step.U_next, self._enabled)  # never outside the bounds
         predicted = mean + J @ (U_next - U)
         stamps['finished'] = time.time()
@@ -606,13 +602,11 @@ class CoordinatorNode(Node):
                                      'estimator_compute_s': float(answer.compute_s), **dict(step.info)})
 
     @staticmethod
-    def _past_iteration(U, mean, std, info):
-        """An earlier iteration as update rules see it (``core.update.PastIteration`` where the
-        core has it; rules that do not learn from the run ignore the history)."""
-        past = getattr(core_update, 'PastIteration', None)
-        if past is None:
-            return (U, mean, std, info)
-        return past(np.asarray(U, float), np.asarray(mean, float), np.asarray(std, float), dict(info))
+    def _past_iteration(U, mean, std, info) -> PastIteration:
+        """An earlier iteration as update rules see it (rules that do not learn from the run
+        ignore the history)."""
+        return PastIteration(np.asarray(U, float), np.asarray(mean, float),
+                             np.asarray(std, float), dict(info))
 
     def _end(self, response, state: str, message: str):
         """Answer a stopped iteration: nothing advanced, the commands in force unchanged."""
