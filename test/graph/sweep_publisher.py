@@ -5,7 +5,7 @@ Usage: python sweep_publisher.py SWEEP_S LIFETIME_S
 Waits (up to 20 s) until every topic has a subscriber (the recorder), then publishes: status
 'commanding' of iteration 0 and a FanCommand (latched), status 'sweeping', SWEEP_S seconds of
 force at 1 kHz (WrenchStamped stamped with its sample time on a 1 ms schedule, as the force
-sensor's sample clock does, force.z = 2.5 N, frame_id = its index k)
+sensor's sample clock does, torque.x = its publication time [s], force.z = 2.5 N, frame_id = its index k)
 and plate pose at 100 Hz (PoseStamped, frame 'tunnel', position x = 0.001 j, y = -0.002 j for the
 j-th pose), then status 'estimating'. Prints the counts and exits; ends by itself after
 LIFETIME_S [s] or when its parent process is gone.
@@ -74,6 +74,7 @@ def main(argv):
             msg.header.stamp = stamp
             msg.header.frame_id = str(k)
             msg.wrench.force.z = 2.5
+            msg.wrench.torque.x = time.time()    # when it was published [s, epoch]
             force.publish(msg)
             if k % 10 == 5:
                 p = PoseStamped()

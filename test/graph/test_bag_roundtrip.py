@@ -60,11 +60,14 @@ def test_a_live_sweep_recorded_by_another_process_survives_sigint_whole(ros_proc
         forces = [(t, m) for _, t, m in bag.decoded([names.FORCE])]
     assert counts == {names.FORCE: n_force, names.PLATE_POSE: n_force // 10, names.STATUS: 3,
                       names.FAN_COMMAND: 1}, output(recorder)
-    # nothing lost or reordered at 1 kHz between processes; receive times after header stamps
+    # nothing lost or reordered at 1 kHz between processes; each message received after its
+    # sample time, and soon after it was published (a busy publisher may fall behind its 1 ms
+    # schedule; that is its delay, not the recorder's)
     assert [int(m.header.frame_id) for _, m in forces] == list(range(n_force))
-    lag_s = np.array([t * 1e-9 - (m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)
-                      for t, m in forces])
-    assert np.all(lag_s > 0) and np.median(lag_s) < 0.05
+    after_sample = np.array([t * 1e-9 - (m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)
+                             for t, m in forces])
+    latency = np.array([t * 1e-9 - m.wrench.torque.x for t, m in forces])
+    assert np.all(after_sample > 0) and np.all(latency > 0) and np.median(latency) < 0.05
 
     (record,) = read_sweep_records(bag_path)
     assert (record.iteration, record.source, record.complete) == (0, 'status', True)

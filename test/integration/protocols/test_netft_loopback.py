@@ -79,7 +79,9 @@ def test_one_second_at_1khz_with_faults_counts_exactly_what_the_server_did(rig, 
     assert len(seqs) == len(set(seqs)) == s.accepted
     assert s.accepted == 1000 - len(log.dropped) - len(log.truncated) - len(log.reordered)
     lost = set(log.dropped) | set(log.truncated) | set(log.reordered)
-    assert set(seqs) == {(initial + k) % TOP for k in range(1000)} - lost
+    # a host too busy to keep up makes the server skip sequence numbers ahead (late_skips)
+    universe = {(initial + k) % TOP for k in range(log.generated + log.late_skips)} - lost
+    assert set(seqs) <= universe and len(universe) - len(seqs) == log.late_skips
     # values are the source's, at the ideal sample time, to the count resolution
     for x in got.samples:
         k = (x.rdt_sequence - initial) % TOP
@@ -89,7 +91,7 @@ def test_one_second_at_1khz_with_faults_counts_exactly_what_the_server_did(rig, 
     fault_row('Net F/T at 1 kHz over UDP: 2 % dropped, 3 % reordered, 1 % duplicated, 0.5 % '
               'truncated (corrupt) datagrams, sequence wrapping past 2^32',
               'every fault counted exactly; only intact in-order records used, each once',
-              True, len({(initial + k) % TOP for k in range(1000)} - lost) - len(seqs))
+              True, len(universe) - log.late_skips - len(seqs))
     print(f'\nRDT loopback: {s.accepted} samples in {elapsed:.3f} s '
           f'({s.received / elapsed:.0f} records/s received); {s}')
 
