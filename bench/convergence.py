@@ -23,7 +23,7 @@ pinned to one thread (multithreaded BLAS on a busy 2-core machine has 100x outli
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--source static]
                                    [--zeta-cache FILE] [--json FILE]
 The JSON goes to bench/out/convergence.json (--source plate) or bench/out/convergence_static.json
-(--source static) unless --json names another file.
+(--source static), with _quick before .json for a --quick run, unless --json names another file.
 """
 from __future__ import annotations
 
@@ -151,9 +151,11 @@ def run_method(setup, target_values, effects, rule_cfg, seed, iterations, memory
     return np.array(errors), np.array(compute[:-1]), np.array(cpu[:-1]), stops, peak
 
 
-def default_json(source: str) -> str:
-    """The results file of a measurement source: each source keeps its own."""
-    return 'bench/out/convergence.json' if source == 'plate' else f'bench/out/convergence_{source}.json'
+def default_json(source: str, quick: bool = False) -> str:
+    """The results file of a measurement source: each source keeps its own, and a --quick run
+    never replaces the full results."""
+    stem = 'convergence' if source == 'plate' else f'convergence_{source}'
+    return f'bench/out/{stem}_quick.json' if quick else f'bench/out/{stem}.json'
 
 
 def first_within(ratios) -> float:
@@ -167,7 +169,8 @@ def main(argv=None):
     ap.add_argument('--iterations', type=int, default=12)
     ap.add_argument('--json', default=None,
                     help='where to write the results (default: bench/out/convergence.json, or '
-                         'bench/out/convergence_static.json with --source static)')
+                         'bench/out/convergence_static.json with --source static; *_quick.json '
+                         'with --quick)')
     ap.add_argument('--quick', action='store_true', help='effects off, no CM-off cases, 2 seeds')
     ap.add_argument('--source', choices=('plate', 'static'), default='plate',
                     help='measurement source: the moving plate (default) or the static sensor grid')
@@ -178,7 +181,7 @@ def main(argv=None):
                     help='override an adaptive setting, e.g. --set radius=0.5 (repeatable)')
     args = ap.parse_args(argv)
     if args.json is None:
-        args.json = default_json(args.source)
+        args.json = default_json(args.source, args.quick)
     methods = {m: dict(METHODS[m]) for m in args.methods.split(',')}
     for kv in args.set:
         key, _, value = kv.partition('=')

@@ -28,13 +28,14 @@ def _load(name):
     return module
 
 
-@pytest.mark.parametrize('source,written', [('plate', 'convergence.json'),
-                                            ('static', 'convergence_static.json')])
-def test_convergence_writes_the_file_of_its_source(source, written, tmp_path, monkeypatch):
+@pytest.mark.parametrize('source,quick,written', [
+    ('plate', False, 'convergence.json'), ('static', False, 'convergence_static.json'),
+    ('plate', True, 'convergence_quick.json'), ('static', True, 'convergence_static_quick.json')])
+def test_convergence_writes_the_file_of_its_source(source, quick, written, tmp_path, monkeypatch):
     conv = _load('convergence')
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(conv, 'all_cases', lambda: [])  # no cases: only the bookkeeping runs
-    conv.main(['--source', source, '--seeds', '1', '--iterations', '2'])
+    conv.main(['--source', source, '--seeds', '1', '--iterations', '2', *(['--quick'] if quick else [])])
     files = sorted(p.name for p in (tmp_path / 'bench' / 'out').iterdir())
     assert files == [written]
     assert json.loads((tmp_path / 'bench' / 'out' / written).read_text())['meta']['source'] == source
