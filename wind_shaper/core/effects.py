@@ -50,7 +50,7 @@ __all__ = ['Wrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCu
            'FanShape', 'Swirl',
            'JetInteraction', 'DeadBand', 'Background', 'WallLayer', 'fan_part', 'fan_thrust',
            'fan_width', 'fan_landing', 'is_fan_sum', 'walk', 'param_slices', 'find_term',
-           'term_label', 'set_fixed', 'PLATE_SIDE']
+           'term_label', 'set_fixed', 'refix', 'PLATE_SIDE']
 
 #: Side of the square force plate [m] (the paper's 20 cm plate); terms that average over the
 #: plate take ``plate_side`` to override it.
@@ -282,10 +282,10 @@ def find_term(term: Term, label: str):
     return None
 
 
-def set_fixed(term: Term, fixed: bool, where: Callable[[dict], bool] = lambda spec: True) -> Term:
-    """A copy of ``term`` with every parameter of the nodes selected by ``where`` (a predicate
-    on the node's ``to_dict`` entry, e.g. ``lambda s: s['kind'] == 'fan_gain'``) fixed (or
-    freed). Goes through the model-file form, so it works for every registered term."""
+def refix(term: Term, choose: Callable[[dict, type], list | None]) -> Term:
+    """A copy of ``term`` whose nodes' fixed parameters are ``choose(spec, cls)``: the names to
+    fix for the node with model-file entry ``spec`` and term class ``cls``, or None to leave the
+    node as it is. Goes through the model-file form, so it works for every registered term."""
     from .model import TERMS
 
     def visit(spec):
@@ -295,14 +295,23 @@ def set_fixed(term: Term, fixed: bool, where: Callable[[dict], bool] = lambda sp
             return spec
         if isinstance(spec.get('term'), Mapping):
             spec['term'] = visit(spec['term'])
-        if where(spec):
-            cls = TERMS[spec['kind']]
-            names = [h.name for h in cls.hypers]
-            spec['fixed'] = names if fixed else [
-                n for n in names if any(h.name == n and h.fixed for h in cls.hypers)]
+        names = choose(spec, TERMS[spec['kind']])
+        if names is not None:
+            spec['fixed'] = list(names)
         return spec
 
     return term_from_dict(visit(term.to_dict()), term.fans)
+
+
+def set_fixed(term: Term, fixed: bool, where: Callable[[dict], bool] = lambda spec: True) -> Term:
+    """A copy of ``term`` with every parameter of the nodes selected by ``where`` (a predicate
+    on the node's ``to_dict`` entry, e.g. ``lambda s: s['kind'] == 'fan_gain'``) fixed (or
+    freed, back to the class's own fixed parameters)."""
+    def choose(spec, cls):
+        if not where(spec):
+            return None
+        return [h.name for h in cls.hypers if fixed or h.fixed]
+    return refix(term, choose)
 
 
 # =============================================================================================

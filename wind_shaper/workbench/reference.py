@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.calibration import CalibrationPlan, collect_calibration
-from ..core.effects import FanCurve, FanGain, FanShape, FanShift, FanWidth, walk
+from ..core.effects import FanCurve, FanGain, FanShape, FanShift, FanWidth, refix, walk
 from ..core.geometry import FanArray
 from ..core.model import Term, paper_prior, term_from_dict
 from .data import FitData
@@ -105,20 +105,8 @@ FREE_PARAMETERS = {'fan_jets': ('thrust_higher', 'thrust_lower'), 'central_ring'
 
 def hold_geometry(model: Term) -> Term:
     """A copy of ``model`` whose parameters are all fixed except ``FREE_PARAMETERS``."""
-    from ..core.model import TERMS
-
-    def visit(spec):
-        spec = dict(spec)
-        if spec.get('kind') in ('sum', 'product'):
-            spec['terms'] = [visit(t) for t in spec['terms']]
-            return spec
-        if isinstance(spec.get('term'), dict):
-            spec['term'] = visit(spec['term'])
-        keep = FREE_PARAMETERS.get(spec['kind'], ())
-        spec['fixed'] = [h.name for h in TERMS[spec['kind']].hypers if h.name not in keep]
-        return spec
-
-    return term_from_dict(visit(model.to_dict()), model.fans)
+    return refix(model, lambda spec, cls: [h.name for h in cls.hypers
+                                           if h.name not in FREE_PARAMETERS.get(spec['kind'], ())])
 
 
 @dataclass(frozen=True)
