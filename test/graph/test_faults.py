@@ -35,7 +35,9 @@ class Rig:
         self.env, self.root = env, root
         self.up = Up(env, root, '--run-name', RUN, '--startup-timeout', '60',
                      '--set', f'coordinator.sweep_duration_s={SWEEP_S}',
-                     '--set', 'coordinator.settle_s=0.3')
+                     '--set', 'coordinator.settle_s=0.3',
+                     # a stalled host loses poses and leaves holes; more sweeps fill them
+                     '--set', 'coordinator.max_sweeps=5')
         self.pids = node_pids(self.up.wait_line(UP_LINE.pattern, 75))
         self.run = root / 'runs' / RUN
         self.journal = root / 'runs' / 'journal'

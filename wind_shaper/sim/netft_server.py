@@ -8,7 +8,8 @@ monotonic clock (when the thread is late it sends the records it owes back to ba
 (command 0) stops; a bias request (0x42) zeroes the current reading.
 
 The wrench comes from ``force_source(t)`` -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]), with t [s] the
-ideal sample time k / rate_hz since the stream started. Readings beyond int32 counts (or NaN)
+ideal sample time k / rate_hz since the stream started (k counts skipped records too, so a
+record's t always matches its sequence number). Readings beyond int32 counts (or NaN)
 saturate and set status bits 31 and 30, like a saturated transducer.
 
 Fault injection (``NetFtFaults``, seeded, so runs repeat): drops, reorders (a record is held
@@ -147,7 +148,7 @@ class SimNetFtServer(UdpPeer):
     @property
     def stream_start(self) -> float:
         """time.monotonic() [s] of the current stream's t = 0: record t is taken at
-        ``stream_start + t`` (moved forward when the server skips records it fell behind on)."""
+        ``stream_start + t``; t stays in step with the sequence number, skipped records included."""
         return self._t_start
 
     def fault_log(self) -> NetFtFaultLog:
@@ -233,7 +234,7 @@ class SimNetFtServer(UdpPeer):
             # own clock, so their sequence numbers are used up and the client counts them lost;
             # numbers stay in step with sample time, which the client's SampleClock relies on.
             skip = due - self.max_batch
-            self._t_start += skip / self.rate_hz
+            self._k += skip          # the skipped samples' times are used up too
             self._rdt_seq = (self._rdt_seq + skip) % _U32
             self._ft_seq = (self._ft_seq + skip) % _U32
             with self._lock:

@@ -96,6 +96,29 @@ def test_one_second_at_1khz_with_faults_counts_exactly_what_the_server_did(rig, 
           f'({s.received / elapsed:.0f} records/s received); {s}')
 
 
+def test_records_after_a_stall_carry_the_values_of_their_sequence_numbers(rig, wait_for):
+    """A server thread held up far beyond max_batch periods skips records; each record it
+    sends afterwards still carries the wrench at its own sequence number's sample time."""
+    stalled = []
+
+    def stalling_source(t):
+        if t >= 0.1 and not stalled:      # once, 0.1 s into the stream: a 0.3 s stall
+            stalled.append(t)
+            time.sleep(0.3)
+        return wrench(t)
+
+    server, client, got = rig(source=stalling_source, max_batch=20)
+    client.start(sample_count=600)
+    assert server.wait_idle(5.0, min_generated=600)
+    assert wait_for(lambda: client.stats.datagrams == server.fault_log().datagrams_sent, 2.0)
+    assert server.fault_log().late_skips > 0                  # the stall really skipped records
+    first = got.samples[0].rdt_sequence
+    for x in got.samples:
+        expected = wrench(((x.rdt_sequence - 1) % TOP) / RATE)
+        assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, expected)), \
+            (x.rdt_sequence, first)
+
+
 def test_decode_rate_of_the_pure_path_beats_the_sensor():
     """decode + sequence tracking + SI conversion of 7 kHz worth of records, timed."""
     cal = NetFtCalibration()
