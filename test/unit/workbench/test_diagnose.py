@@ -3,12 +3,14 @@ one no candidate stands for. For each: the true effect ranks first, its fitted p
 within the stated tolerance of ``truth()``, adding it cuts the held-out model error at least in
 half, and the shaping loop (Algorithm 1, where the model sets the search direction) with the
 improved model ends iteration 6 lower than with the model the diagnosis started from."""
-from pathlib import Path
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
-from wind_shaper.core.plugins import load_plugin
+from wind_shaper.sim.effects import HiddenEffect
+from wind_shaper.sim.physics import FlatTop, JetGroup
 from wind_shaper.workbench.closed_loop import compare_closed_loop
 from wind_shaper.workbench.diagnose import Diagnosis
 from wind_shaper.workbench.library import candidate_for_hidden_effect
@@ -79,10 +81,21 @@ def test_without_hidden_effects_nothing_is_reported(diagnosed):
     assert d.baseline_rmse_ < 0.5 * d.noise_sd_
 
 
-# Not in the library: a gap in the straightener (the README's example of a user's own effect),
-# taken from the example file itself so the documented example is what is tested.
-StrayJet = load_plugin(Path(__file__).resolve().parents[3] / 'docs' / 'examples'
-                       / 'stray_jet_sim.py').StrayJet
+@dataclass(frozen=True)
+class StrayJet(HiddenEffect):
+    """Not in the library: a gap in the straightener at (x, y) lets through extra air,
+    ``share`` of the total thrust, ``width`` [m] wide."""
+
+    x: float = 0.0
+    y: float = -0.13
+    share: float = 0.1
+    width: float = 0.08
+    name: ClassVar[str] = 'stray_jet'
+
+    def sources(self, groups, thrust, geometry):
+        return groups + [JetGroup(FlatTop(2.0), np.array([[self.x, self.y]]),
+                                  np.array([self.share * float(np.sum(thrust))]),
+                                  np.array([self.width]), np.array([-1]))]
 
 
 @pytest.mark.slow
