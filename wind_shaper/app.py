@@ -9,14 +9,14 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .core.calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
+from .model.calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
 from .core.config import ShapingConfig, default_config_dir, load_geometry, load_shaping, read_yaml
 from .core.geometry import TunnelGeometry
-from .core.loop import IterationRecord, ShapingLoop
-from .core.model import Term, paper_prior
-from .core.modelfile import load_model, save_model
-from .core.reach import check_reachable
-from .core.targets import Target, make_target
+from .control.loop import IterationRecord, ShapingLoop
+from .model.terms import Term, paper_prior
+from .model.modelfile import load_model, save_model
+from .control.reach import check_reachable
+from .control.targets import Target, make_target
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from up_driver import UP_LINE, Up, alive, node_pids
 
-from wind_shaper.core.journal import OPEN_MARK, load_sweep_samples
-from wind_shaper.core.runstore import RunState
+from wind_shaper.storage.journal import OPEN_MARK, load_sweep_samples
+from wind_shaper.storage.runstore import RunState
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.fault]
 

@@ -24,8 +24,8 @@ from wind_shaper_msgs.srv import EstimateField, RunIteration, SetModel, Sweep  #
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.cli.main import main as cli  # noqa: E402
 from wind_shaper.core.config import ShapingConfig  # noqa: E402
-from wind_shaper.core.modelfile import save_model  # noqa: E402
-from wind_shaper.core.runstore import RunStore  # noqa: E402
+from wind_shaper.model.modelfile import save_model  # noqa: E402
+from wind_shaper.storage.runstore import RunStore  # noqa: E402
 from wind_shaper.nodes.coordinator import CoordinatorNode  # noqa: E402
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402

@@ -14,8 +14,8 @@ from wind_shaper_msgs.msg import FieldEstimate  # noqa: E402
 from wind_shaper_msgs.srv import EstimateField  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
-from wind_shaper.core.align import align_sweep  # noqa: E402
-from wind_shaper.core.journal import load_sweep_samples  # noqa: E402
+from wind_shaper.estimation.align import align_sweep  # noqa: E402
+from wind_shaper.storage.journal import load_sweep_samples  # noqa: E402
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 from wind_shaper.ros.convert import estimate_from_msg, seconds_to_stamp, sweep_from_msg  # noqa: E402

@@ -18,7 +18,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from wind_shaper.core.errors import ConfigError  # noqa: E402
-from wind_shaper.core.protocols.netft import RdtCommand, RdtRecord, encode_request  # noqa: E402
+from wind_shaper.protocols.netft import RdtCommand, RdtRecord, encode_request  # noqa: E402
 from wind_shaper.nodes.force_sensor import ForceSensorNode, ForceSensorParams  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 from wind_shaper.ros.convert import stamp_to_seconds  # noqa: E402

@@ -16,7 +16,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 from wind_shaper.core.errors import ConfigError  # noqa: E402
-from wind_shaper.core.frames import quat_to_yaw  # noqa: E402
+from wind_shaper.estimation.frames import quat_to_yaw  # noqa: E402
 from wind_shaper.nodes.mocap_relay import MocapRelayNode, MocapRelayParams  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 

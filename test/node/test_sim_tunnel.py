@@ -21,9 +21,9 @@ from wind_shaper_msgs.srv import Sweep  # noqa: E402
 
 from wind_shaper.core.config import default_config_dir  # noqa: E402
 from wind_shaper.core.errors import ConfigError  # noqa: E402
-from wind_shaper.core.frames import PlateRelay, RigidTransform  # noqa: E402
-from wind_shaper.core.protocols.mavlink_fans import FanChannel, FanChannelMap  # noqa: E402
-from wind_shaper.core.protocols.netft import NetFtCalibration  # noqa: E402
+from wind_shaper.estimation.frames import PlateRelay, RigidTransform  # noqa: E402
+from wind_shaper.protocols.mavlink_fans import FanChannel, FanChannelMap  # noqa: E402
+from wind_shaper.protocols.netft import NetFtCalibration  # noqa: E402
 from wind_shaper.io import MavlinkFanLink, NetFtClient  # noqa: E402
 from wind_shaper.nodes.sim_tunnel import SimTunnel, SimTunnelParams  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402

@@ -4,7 +4,7 @@ A recording holds continuous force (~1 kHz) and pose (~100 Hz) streams; the swee
 intervals in which the coordinator reported ``state == 'sweeping'`` for an iteration k
 (``IterationStatus``), or, in a recording without status messages, the intervals between
 changes of the fan commands. Interval times are the bag's receive times [ns], one clock for
-all topics; pairing inside an interval (``wind_shaper.core.align``) uses the messages' own
+all topics; pairing inside an interval (``wind_shaper.estimation.align``) uses the messages' own
 header stamps, as the field estimator does.
 """
 from __future__ import annotations

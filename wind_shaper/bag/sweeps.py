@@ -5,7 +5,7 @@ Reading: the bag's force (``WrenchStamped``, vertical force = ``wrench.force.z``
 pose (``PoseStamped``, tunnel frame, x/y [m]) streams are cut into sweeps by the coordinator's
 ``IterationStatus`` (state 'sweeping' of iteration k) or, without status, by fan-command
 changes (``wind_shaper.bag.segments``); inside a sweep, force and pose are paired by their
-header stamps [s] exactly as the field estimator pairs them (``wind_shaper.core.align``: one
+header stamps [s] exactly as the field estimator pairs them (``wind_shaper.estimation.align``: one
 pair per pose, mean force over +-half a pose period).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from ..core.align import align_sweep
+from ..estimation.align import align_sweep
 from ..core.errors import SweepError
 from ..core.tunnel import Sweep
 from ..ros import names
@@ -199,7 +199,7 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
     if estimates is not None and (len(estimates) != len(sweeps)):
         raise BagWriteError(f'{len(estimates)} estimates given for {len(sweeps)} sweeps')
     if tunnel_from_mocap is None:
-        from ..core.frames import RigidTransform
+        from ..estimation.frames import RigidTransform
         tunnel_from_mocap = RigidTransform.identity()
     mocap_from_tunnel = tunnel_from_mocap.inverse()
 

@@ -21,7 +21,7 @@ def _load_plugins(specs) -> list:
     """Import each ``--plugin`` (a Python file or a module name) and those listed in
     WIND_SHAPER_PLUGINS (``core.plugins``); return the candidate families they offer (a
     module-level ``FAMILIES`` list)."""
-    from ..core.plugins import load_plugins, plugin_families
+    from ..model.plugins import load_plugins, plugin_families
     return plugin_families(load_plugins(specs))
 
 
@@ -91,7 +91,7 @@ def _cmd_fit(args) -> int:
 
 
 def _commission(setup, args, out) -> int:
-    from ..core.modelfile import save_model
+    from ..model.modelfile import save_model
     from ..workbench.reference import commission_on
     from ..workbench.report import Report
     if not args.sim:

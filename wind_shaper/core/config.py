@@ -10,9 +10,9 @@ from typing import Mapping
 import yaml
 
 from .errors import ConfigError
-from .field import FieldEstimator
+from ..estimation.field import FieldEstimator
 from .geometry import TunnelGeometry
-from .update import CommandBounds, PaperUpdate
+from ..control.update import CommandBounds, PaperUpdate
 
 
 def default_config_dir() -> Path:
@@ -89,7 +89,7 @@ class ShapingConfig:
         method = cfg.pop('method', 'paper')
         # One section holds both methods' settings; each method drops the other's keys and
         # still refuses keys that neither knows.
-        from .solvers import AdaptiveUpdate
+        from ..control.solvers import AdaptiveUpdate
         paper_keys = {f.name for f in fields(PaperUpdate)}
         adaptive_keys = {f.name for f in fields(AdaptiveUpdate)}
         if method == 'paper':

@@ -35,7 +35,7 @@ from typing import Callable, Mapping, Sequence
 os.environ.setdefault('MAVLINK20', '1')
 from pymavlink import mavutil  # noqa: E402
 
-from ..core.protocols.mavlink_fans import (FanChannelMap, FanCommand, Flavour,  # noqa: E402
+from ..protocols.mavlink_fans import (FanChannelMap, FanCommand, Flavour,  # noqa: E402
                                            applied_fractions, build_fan_messages, mavlink,
                                            servo_output_pulses)
 from .errors import LinkConfigError, TransportError  # noqa: E402

@@ -16,8 +16,8 @@ import threading
 from dataclasses import dataclass
 from typing import Callable
 
-from ..core.protocols.errors import NetFtPacketError
-from ..core.protocols.netft import (RDT_PORT, NetFtCalibration, NetFtSample, RdtCommand,
+from ..protocols.errors import NetFtPacketError
+from ..protocols.netft import (RDT_PORT, NetFtCalibration, NetFtSample, RdtCommand,
                                     RdtSequenceTracker, decode_records, encode_request)
 from .errors import LinkConfigError, TransportError
 

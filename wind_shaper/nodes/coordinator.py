@@ -13,7 +13,7 @@ iteration at the next step boundary; the fans keep the commands of the last comp
 and the run does not advance. ``/wind_shaper/set_model`` (wind_shaper_msgs/SetModel) swaps the
 prior (YAML text or a path; validated on the tunnel's fans; a refused model leaves the old one).
 
-The run folder ``<run_root>/<run_name>/`` (``wind_shaper.core.runstore``) survives restarts: on
+The run folder ``<run_root>/<run_name>/`` (``wind_shaper.storage.runstore``) survives restarts: on
 start the coordinator resumes after the last completed iteration and publishes its commands.
 The command in force is republished at ``republish_hz`` to feed fan_output's watchdog.
 ``/wind_shaper/iteration/status`` (IterationStatus, latched) goes out on every state change and
@@ -44,10 +44,10 @@ from wind_shaper_msgs.srv import EstimateField, RunIteration, SetModel, Sweep
 from ..app import Setup
 from ..core.config import read_yaml
 from ..core.errors import ConfigError, WindShaperError
-from ..core.field import FieldEstimate, closest_samples
-from ..core.modelfile import load_model, model_from_text
-from ..core.runstore import IterationData, RunInfo, RunStore
-from ..core.update import PastIteration, UpdateInput
+from ..estimation.field import FieldEstimate, closest_samples
+from ..model.modelfile import load_model, model_from_text
+from ..storage.runstore import IterationData, RunInfo, RunStore
+from ..control.update import PastIteration, UpdateInput
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_from_msg, fan_command, pwm_from_command, sweep_from_msg

@@ -40,7 +40,7 @@ from std_srvs.srv import Trigger
 from wind_shaper_msgs.msg import FanCommand
 
 from ..core.errors import ConfigError
-from ..core.protocols.mavlink_fans import FanChannel, FanChannelMap, Flavour, SlewLimiter
+from ..protocols.mavlink_fans import FanChannel, FanChannelMap, Flavour, SlewLimiter
 from ..io import LinkConfigError, MavlinkFanLink
 from ..ros import diagnostics as diag
 from ..ros import names, qos

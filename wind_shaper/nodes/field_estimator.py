@@ -5,7 +5,7 @@ collecting) and ``/wind_shaper/field_estimator/estimate`` (wind_shaper_msgs/Esti
 buffers the vertical force (``/wind_shaper/force``, WrenchStamped, force.z [N]; axis and sign
 are fixed upstream by force_sensor) and the plate centre (``/wind_shaper/plate/pose``,
 PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose with the mean
-force over +-half a pose period around its stamp (``wind_shaper.core.align``), runs the core
+force over +-half a pose period around its stamp (``wind_shaper.estimation.align``), runs the core
 ``FieldEstimator`` (GET_CLOSEST + GP, settings from shaping.yaml's ``estimator`` section) at the
 key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/field`` (latched)
 and returns it with the raw pairs (``SweepSamples``). An estimate that fails (no samples, streams
@@ -14,7 +14,7 @@ buffers are kept and collection goes on if it was on, so the plate can sweep on 
 coordinator can ask again. /diagnostics at 1 Hz.
 
 Every sample collected is also appended to the sweep journal (``journal_dir``,
-``wind_shaper.core.journal``) as it arrives. A field_estimator killed during a sweep and started
+``wind_shaper.storage.journal``) as it arrives. A field_estimator killed during a sweep and started
 again takes the unfinished sweep back from the journal and goes on collecting, so the samples
 recorded before the kill are all in the estimate.
 """
@@ -34,9 +34,9 @@ from wind_shaper_msgs.msg import FieldEstimate
 from wind_shaper_msgs.srv import EstimateField
 
 from ..app import Setup
-from ..core.align import SampleBuffer, align_sweep
+from ..estimation.align import SampleBuffer, align_sweep
 from ..core.errors import WindShaperError
-from ..core.journal import SweepJournal
+from ..storage.journal import SweepJournal
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_to_msg, seconds_to_stamp, stamp_to_seconds, sweep_to_msg

@@ -29,7 +29,7 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from std_srvs.srv import Trigger
 
 from ..core.errors import ConfigError
-from ..core.protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample, SampleClock
+from ..protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample, SampleClock
 from ..io import LinkConfigError, NetFtClient, NetFtStreamStats, TransportError
 from ..ros import diagnostics as diag
 from ..ros import names, qos

@@ -4,7 +4,7 @@ Subscribes ``input_topic`` (geometry_msgs/PoseStamped from the mocap driver, e.g
 best-effort so it matches the driver's sensor-data QoS) and publishes on ``output_topic`` the
 plate centre ``T_tunnel_mocap * T_mocap_body * plate_offset`` with the plate's orientation, in
 frame ``tunnel``, with the input's stamp unchanged (the capture time the field estimator aligns
-force with). The per-pose logic is ``wind_shaper.core.frames.PlateRelay``: poses with NaN or a
+force with). The per-pose logic is ``wind_shaper.estimation.frames.PlateRelay``: poses with NaN or a
 non-unit quaternion, poses not newer than the last accepted one, and jumps (faster than
 ``max_speed_m_s`` since the last accepted pose) are dropped and counted; poses outside
 ``max_radius_m`` from the tunnel axis are published and flagged. Dropouts (no accepted pose for
@@ -20,7 +20,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..core.frames import PlateRelay, RelayStats, RigidTransform, Verdict
+from ..estimation.frames import PlateRelay, RelayStats, RigidTransform, Verdict
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import stamp_to_seconds

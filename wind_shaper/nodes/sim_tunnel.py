@@ -35,8 +35,8 @@ from wind_shaper_msgs.srv import Sweep
 
 from ..app import Setup
 from ..core.errors import ConfigError, WindShaperError
-from ..core.protocols.errors import ProtocolConfigError
-from ..core.protocols.mavlink_fans import FanChannel, FanChannelMap
+from ..protocols.errors import ProtocolConfigError
+from ..protocols.mavlink_fans import FanChannel, FanChannelMap
 from ..ros import diagnostics, names, qos
 from ..ros.convert import seconds_to_stamp
 from ..ros.params import declare_parameters, param

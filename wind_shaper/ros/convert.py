@@ -5,7 +5,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from wind_shaper_msgs.msg import FanCommand, FieldEstimate, SweepSamples
 
-from ..core.field import FieldEstimate as CoreEstimate
+from ..estimation.field import FieldEstimate as CoreEstimate
 from ..core.tunnel import Sweep
 from . import names
 

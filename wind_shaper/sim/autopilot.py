@@ -30,8 +30,8 @@ from typing import Callable
 
 os.environ.setdefault('MAVLINK20', '1')
 from .udp_peer import UdpPeer
-from ..core.protocols.errors import ProtocolConfigError  # noqa: E402
-from ..core.protocols.mavlink_fans import UINT16_MAX, mavlink  # noqa: E402
+from ..protocols.errors import ProtocolConfigError  # noqa: E402
+from ..protocols.mavlink_fans import UINT16_MAX, mavlink  # noqa: E402
 
 __all__ = ['SimAutopilot']
 

@@ -39,7 +39,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.frames import RigidTransform, quat_to_matrix
+from ..estimation.frames import RigidTransform, quat_to_matrix
 from .errors import CommandError
 from .plant import SimulatedTunnel
 

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 from .udp_peer import UdpPeer
-from ..core.protocols.errors import NetFtPacketError, ProtocolConfigError
-from ..core.protocols.netft import (INT32_MAX, NetFtCalibration, RdtCommand, RdtRecord,
+from ..protocols.errors import NetFtPacketError, ProtocolConfigError
+from ..protocols.netft import (INT32_MAX, NetFtCalibration, RdtCommand, RdtRecord,
                                     decode_request)
 
 __all__ = ['SimNetFtServer', 'NetFtFaults', 'NetFtFaultLog', 'SATURATION_STATUS']

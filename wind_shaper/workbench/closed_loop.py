@@ -12,7 +12,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..core.model import Term
+from ..model.terms import Term
 
 __all__ = ['LoopComparison', 'compare_closed_loop']
 

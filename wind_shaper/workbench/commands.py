@@ -13,10 +13,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..core.effects import Wrapper, term_label, walk
+from ..model.effects import Wrapper, term_label, walk
 from ..core.geometry import TunnelGeometry
-from ..core.model import TERMS, Term
-from ..core.modelfile import save_model
+from ..model.terms import TERMS, Term
+from ..model.modelfile import save_model
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
 from .errors import CandidateError

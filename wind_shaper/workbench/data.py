@@ -6,7 +6,7 @@ A ``SweepSet`` is several sweeps of the force plate, each at its own fan command
 * ``from_sim``: run sweeps on a simulated (or any ``core.tunnel.Tunnel``) tunnel at commands
   from ``design_commands``;
 * ``from_bag``: a rosbag2 recording of the node graph (``wind_shaper.bag.read_sweeps``);
-* ``from_run_folder``: the coordinator's run folder (``wind_shaper.core.runstore.RunStore``);
+* ``from_run_folder``: the coordinator's run folder (``wind_shaper.storage.runstore.RunStore``);
 * ``from_report``: the report folder of ``wind-shaper shape`` (``run.json`` + ``sweeps.npz``);
 * ``load_sweeps``: any of the three paths above, told apart by what the path holds.
 
@@ -273,9 +273,9 @@ def from_run_folder(folder) -> SweepSet:
         raise DataSourceError(f'{folder} is not a run folder (no run.yaml): give the folder the '
                               f'coordinator wrote for one run')
     try:
-        from ..core.runstore import RunStore
+        from ..storage.runstore import RunStore
     except ImportError as exc:
-        raise DataSourceError(f'reading run folders needs wind_shaper.core.runstore ({exc})') from None
+        raise DataSourceError(f'reading run folders needs wind_shaper.storage.runstore ({exc})') from None
     store = RunStore.open(folder.parent, folder.name)
     history = store.load_history()
     if not history:

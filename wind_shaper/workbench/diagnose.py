@@ -43,9 +43,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.effects import param_slices, term_label
+from ..model.effects import param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from ..core.model import Term
+from ..model.terms import Term
 from .data import FitData, SweepSet
 from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
@@ -395,7 +395,7 @@ def drop_text(gain: float) -> str:
 
 
 def _nodes(model):
-    from ..core.effects import walk
+    from ..model.effects import walk
     return walk(model)
 
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..core.effects import _part, _thrust, fan_landing, fan_width, is_fan_sum
-from ..core.model import Term
+from ..model.effects import _part, _thrust, fan_landing, fan_width, is_fan_sum
+from ..model.terms import Term
 from .data import FitData
 from .errors import FitError
 

@@ -23,11 +23,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..core.effects import (Background, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
+from ..model.effects import (Background, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
                             FanShift, FanWidth, JetInteraction, Swirl, WallLayer, Wrapper,
                             _FanWrapper, _has_parts, find_term, walk)
 from ..core.geometry import TunnelGeometry
-from ..core.model import CentralRing, Sum, Term
+from ..model.terms import CentralRing, Sum, Term
 from .errors import CandidateError
 
 __all__ = ['Candidate', 'Library', 'default_library', 'apply_candidate', 'candidate_for_hidden_effect',

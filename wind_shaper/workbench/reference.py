@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.calibration import CalibrationPlan, collect_calibration
-from ..core.effects import FanCurve, FanGain, FanShape, FanShift, FanWidth, refix, walk
+from ..model.calibration import CalibrationPlan, collect_calibration
+from ..model.effects import FanCurve, FanGain, FanShape, FanShift, FanWidth, refix, walk
 from ..core.geometry import FanArray
-from ..core.model import Term, paper_prior, term_from_dict
+from ..model.terms import Term, paper_prior, term_from_dict
 from .data import FitData
 from .fitting import FitResult, fit_model
 

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.field import GaussianProcessField
+from ..estimation.field import GaussianProcessField
 from ..core.geometry import TunnelGeometry
-from ..core.model import Term
+from ..model.terms import Term
 from .data import FitData
 
 __all__ = ['ResidualAnalysis', 'analyse_residuals']

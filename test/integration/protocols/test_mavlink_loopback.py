@@ -5,8 +5,8 @@ import time
 
 import pytest
 
-from wind_shaper.core.protocols.errors import FanCommandError
-from wind_shaper.core.protocols.mavlink_fans import FanChannelMap, mavlink
+from wind_shaper.protocols.errors import FanCommandError
+from wind_shaper.protocols.mavlink_fans import FanChannelMap, mavlink
 from wind_shaper.io import LinkConfigError, MavlinkFanLink, TransportError
 from wind_shaper.sim.autopilot import SimAutopilot
 

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from wind_shaper.core.protocols.netft import (NetFtCalibration, RdtRecord, RdtSequenceTracker,
+from wind_shaper.protocols.netft import (NetFtCalibration, RdtRecord, RdtSequenceTracker,
                                               decode_records, encode_records)
 from wind_shaper.io import LinkConfigError, NetFtClient, TransportError
 from wind_shaper.sim.netft_server import NetFtFaults, SimNetFtServer

@@ -7,8 +7,8 @@ import pytest
 from wind_shaper.bag import BagReader, BagWriter, read_sweep_records, read_sweeps, write_sweep_bag
 from wind_shaper.bag.types import typestore
 from wind_shaper.core.errors import SweepError
-from wind_shaper.core.field import FieldEstimator
-from wind_shaper.core.frames import RigidTransform, quat_from_yaw
+from wind_shaper.estimation.field import FieldEstimator
+from wind_shaper.estimation.frames import RigidTransform, quat_from_yaw
 from wind_shaper.core.geometry import TunnelGeometry
 from wind_shaper.ros import names
 

@@ -5,8 +5,8 @@ import random
 import numpy as np
 import pytest
 
-from wind_shaper.core.protocols.errors import FanCommandError, ProtocolConfigError
-from wind_shaper.core.protocols.mavlink_fans import (
+from wind_shaper.protocols.errors import FanCommandError, ProtocolConfigError
+from wind_shaper.protocols.mavlink_fans import (
     UINT16_MAX, FanChannel, FanChannelMap, Flavour, SlewLimiter, actuator_command_messages,
     actuator_value_to_pulse, applied_fractions, build_fan_messages, mavlink,
     pulse_to_actuator_value, rc_override_message, servo_command_messages, servo_output_pulses)

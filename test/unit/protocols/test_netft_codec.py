@@ -4,8 +4,8 @@ import struct
 
 import pytest
 
-from wind_shaper.core.protocols.errors import NetFtPacketError, ProtocolConfigError
-from wind_shaper.core.protocols.netft import (INT32_MAX, INT32_MIN, NetFtCalibration, RdtCommand,
+from wind_shaper.protocols.errors import NetFtPacketError, ProtocolConfigError
+from wind_shaper.protocols.netft import (INT32_MAX, INT32_MIN, NetFtCalibration, RdtCommand,
                                               RdtRecord, RdtRequest, RdtStatus, decode_records,
                                               decode_request, encode_records, encode_request)
 

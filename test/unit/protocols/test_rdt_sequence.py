@@ -3,8 +3,8 @@ import random
 
 import pytest
 
-from wind_shaper.core.protocols.errors import ProtocolConfigError
-from wind_shaper.core.protocols.netft import RdtSequenceTracker, SequenceVerdict as V
+from wind_shaper.protocols.errors import ProtocolConfigError
+from wind_shaper.protocols.netft import RdtSequenceTracker, SequenceVerdict as V
 
 TOP = 2**32
 

@@ -1,7 +1,7 @@
 """SampleClock: force sample times from RDT sequence numbers, not from arrival times."""
 import numpy as np
 
-from wind_shaper.core.protocols.netft import SampleClock
+from wind_shaper.protocols.netft import SampleClock
 def test_sample_clock_ignores_arrival_lag_spikes():
     rng = np.random.default_rng(3)
     rate = 1000.0

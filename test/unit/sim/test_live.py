@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from wind_shaper.core.errors import ConfigError
-from wind_shaper.core.frames import PlateRelay, RigidTransform
+from wind_shaper.estimation.frames import PlateRelay, RigidTransform
 from wind_shaper.sim import NoiseModel, RandomWalkPath, SimulatedTunnel, TourPath
 from wind_shaper.sim.errors import CommandError
 from wind_shaper.sim.live import (ForceGrid, LiveTunnel, MocapFrame, Motion, plan_sweep,

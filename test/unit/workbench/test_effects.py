@@ -4,10 +4,10 @@ fan parts adding up), then each hypothesis's own law."""
 import numpy as np
 import pytest
 
-from wind_shaper.core import effects as E
+from wind_shaper.model import effects as E
 from wind_shaper.core.errors import ConfigError
 from wind_shaper.core.geometry import TunnelGeometry
-from wind_shaper.core.model import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
+from wind_shaper.model.terms import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
                                     term_from_dict)
 
 
@@ -182,11 +182,11 @@ def test_tree_helpers_find_and_fix_parameters(rig, base):
 def test_a_model_file_naming_library_kinds_loads_without_importing_them(rig, tmp_path):
     import subprocess
     import sys
-    from wind_shaper.core.modelfile import save_model
+    from wind_shaper.model.modelfile import save_model
     path = save_model(tmp_path / 'm.yaml', E.FanGain(rig.fans, FanJets(rig.fans), fan='HM2', gain=0.8))
     code = ('import sys; from wind_shaper.core.geometry import FanArray; '
-            'from wind_shaper.core.modelfile import load_model; '
+            'from wind_shaper.model.modelfile import load_model; '
             f'm = load_model({str(path)!r}, FanArray.paper_rig()); '
-            'assert "wind_shaper.core.effects" in sys.modules; print(type(m).__name__)')
+            'assert "wind_shaper.model.effects" in sys.modules; print(type(m).__name__)')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == 'FanGain', out.stderr

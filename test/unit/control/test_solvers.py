@@ -1,0 +1,350 @@
+"""The adaptive update: bounds, disabled fans, the secant correction, the per-fan prior
+factorisation and fit, the stopping rule, and the estimation pieces large walls need."""
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from wind_shaper.core.config import ShapingConfig
+from wind_shaper.core.errors import ConfigError
+from wind_shaper.estimation.field import (FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
+                                    fit_hyperparameters)
+from wind_shaper.core.geometry import FanArray, TunnelGeometry, rect_key_points
+from wind_shaper.control.loop import ShapingLoop
+from wind_shaper.model.terms import CentralRing, FanJets, paper_prior
+from wind_shaper.control.secant import SecantCorrection, broyden_update
+from wind_shaper.control.solvers import AdaptiveUpdate, FanBasis, ShapeFit, StoppingRule
+from wind_shaper.control.update import CommandBounds, PaperUpdate, PastIteration, UpdateInput
+
+JETS = dict(thrust_higher=(0.1, 0.5, 15.0), thrust_lower=(0.1, 0.5, 12.0), sigma=0.16)
+RING = dict(thrust=(0.0, 0.5, 11.0), offset=0.6, sigma=0.25)
+
+
+@pytest.fixture
+def prior(rig):
+    return FanJets(rig.fans, **JETS) + CentralRing(rig.fans, **RING)
+
+
+def _inputs(rig, prior, U, field, target, history=(), k=0, std=None, enabled=None):
+    enabled = rig.fans.enabled if enabled is None else enabled
+    return UpdateInput(k, U, target - field, None, enabled, std, model=prior,
+                       key_points=rig.key_points, target=target, history=tuple(history))
+
+
+# -- bounds and disabled fans -------------------------------------------------------------------
+@pytest.mark.parametrize('mode', ['full', 'jacobian_only'])
+def test_commands_stay_in_bounds_and_disabled_fans_stay_zero(rig, prior, rng, mode):
+    bounds = CommandBounds(0.05, 0.6)
+    rule = AdaptiveUpdate(bounds=bounds)
+    enabled = np.array([True, True, False, True, True, True, False])
+    kp = rig.key_points
+    for trial in range(25):
+        U = np.where(enabled, rng.uniform(0.0, 0.8, 7), rng.uniform(0, 1, 7))  # even out-of-bounds input
+        target = rng.uniform(-5, 15) + rng.normal(0, 2) * np.exp(-np.sum((kp - rng.uniform(-.2, .2, 2)) ** 2, 1) / 0.02)
+        field = prior(np.clip(U, 0, 1) * enabled, kp) + rng.normal(0, 0.3, len(kp))
+        if mode == 'full':
+            history = [PastIteration(np.where(enabled, rng.uniform(0, .6, 7), 0), prior(rng.uniform(0, .6, 7) * enabled, kp),
+                                     None, {'radius': rng.uniform(0.01, 0.65)}) for _ in range(trial % 4)]
+            step = rule.step(_inputs(rig, prior, U, field, target, history, k=len(history), enabled=enabled))
+        else:
+            J = prior.jacobian(U, kp) * rng.uniform(0.01, 10)
+            step = rule.step(UpdateInput(trial, U, target - field, J, enabled, None))
+        out = step.U_next
+        assert np.all(np.isfinite(out))
+        assert np.all(out[enabled] >= 0.05 - 1e-12) and np.all(out[enabled] <= 0.6 + 1e-12)
+        assert np.all(out[~enabled] == 0.0)
+
+
+def test_a_disabled_fan_takes_no_part_even_if_the_model_wants_it(rig, prior):
+    kp = rig.key_points
+    off = rig.fans.with_disabled(['CM']).enabled
+    target = prior(np.array([.3, .3, .3, .3, .3, .3, .6]), kp)  # needs the central fan
+    U = np.where(off, 0.3, 0.0)
+    step = AdaptiveUpdate().step(_inputs(rig, prior, U, prior(U, kp), target, enabled=off))
+    assert step.U_next[6] == 0.0
+
+
+# -- the bounded step ---------------------------------------------------------------------------
+def test_on_a_linear_problem_one_step_is_the_bounded_least_squares_optimum(rng):
+    n, N = 5, 60
+    J = rng.normal(size=(N, n))
+    U = np.full(n, 0.3)
+    delta = rng.normal(size=N) * 3
+    bounds = CommandBounds(0.0, 0.65)
+    rule = AdaptiveUpdate(bounds=bounds, radius=0.65, damping=0.0, secant=False)
+    step = rule.step(UpdateInput(0, U, delta, J, np.ones(n, bool)))
+    best = lsq_linear(J, delta, bounds=(0 - U, 0.65 - U)).x + U
+    np.testing.assert_allclose(step.U_next, best, atol=1e-6)
+    assert np.any(np.isclose(step.U_next, 0.0)) or np.any(np.isclose(step.U_next, 0.65))  # active bound
+    # clipping the unconstrained step (the paper's way) lands elsewhere, with a larger error
+    clipped = np.clip(U + np.linalg.lstsq(J, delta, rcond=None)[0], 0, 0.65)
+    assert np.linalg.norm(J @ (clipped - U) - delta) > np.linalg.norm(J @ (step.U_next - U) - delta)
+
+
+def test_box_qp_matches_a_reference_bounded_least_squares_solver(rng):
+    from wind_shaper.control.solvers import box_qp
+    for _ in range(30):
+        n = rng.integers(1, 12)
+        A = rng.normal(size=(40, n)) * rng.uniform(0.01, 10, n)
+        b = rng.normal(size=40) * 5
+        lb = rng.uniform(-1, 0, n)
+        ub = lb + rng.uniform(0, 1, n)
+        x = box_qp(A.T @ A, -A.T @ b, lb, ub)
+        ref = lsq_linear(A, b, bounds=(lb, ub), method='bvls', tol=1e-12).x
+        assert np.all((x >= lb) & (x <= ub))
+        assert np.sum((A @ x - b) ** 2) <= np.sum((A @ ref - b) ** 2) * (1 + 1e-9) + 1e-12
+
+
+def test_the_trust_radius_limits_the_first_step(rng):
+    J = rng.normal(size=(40, 3))
+    step = AdaptiveUpdate(radius=0.05).step(UpdateInput(0, np.full(3, .3), 50 * rng.normal(size=40), J, np.ones(3, bool)))
+    assert np.max(np.abs(step.U_next - 0.3)) <= 0.05 + 1e-12
+
+
+def test_a_fan_idling_at_zero_comes_back_when_the_target_needs_it(rig, prior):
+    # da/dU = 0 at U = 0 for a quadratic thrust curve: a Gauss-Newton step alone cannot lift it
+    kp = rig.key_points
+    U_star = np.array([0.4, 0.3, 0.35, 0.3, 0.4, 0.3, 0.0])
+    U = U_star.copy()
+    U[0] = 0.0
+    target = prior(U_star, kp)
+    step = AdaptiveUpdate(radius=0.5).step(_inputs(rig, prior, U, prior(U, kp), target))
+    assert step.U_next[0] == pytest.approx(0.4, abs=0.02)
+
+
+def test_a_failed_step_shrinks_the_radius_and_restarts_from_the_best_point(rig, prior):
+    kp = rig.key_points
+    target = prior(np.full(7, 0.4), kp)
+    U0, U1 = np.full(7, 0.3), np.full(7, 0.6)
+    info0 = {'radius': 0.4, 'predicted_error': 0.0, 'base_error': float(np.mean((prior(U0, kp) - target) ** 2)),
+             'base_k': 0}
+    history = [PastIteration(U0, prior(U0, kp), None, info0)]
+    worse = prior(U1, kp) + 3.0  # the step made things much worse than predicted
+    step = AdaptiveUpdate().step(_inputs(rig, prior, U1, worse, target, history, k=1))
+    assert step.info['base_k'] == 0 and step.info['rho'] < 0
+    assert step.info['radius'] < 0.4
+    assert np.max(np.abs(step.U_next - U0)) <= step.info['radius'] + 1e-12
+
+
+# -- the secant correction ----------------------------------------------------------------------
+def test_multi_secant_recovers_a_known_linear_jacobian(rng):
+    N, n = 80, 6
+    A = rng.normal(size=(N, n))                  # the true Jacobian
+    J0 = A + 0.5 * rng.normal(size=(N, n))       # a wrong prior
+    S = rng.normal(scale=0.1, size=(n, n))       # n independent steps
+    Y = S @ A.T                                  # measured changes (m, N)
+    misses = Y - S @ J0.T                        # what the prior did not predict
+    D = SecantCorrection(ridge=1e-12, min_step=0.0, memory=n).fit(S, misses)
+    np.testing.assert_allclose(J0 + D.matrix(), A, atol=1e-8)
+    v = rng.normal(size=n)
+    np.testing.assert_allclose(D.matvec(v), D.matrix() @ v, atol=1e-12)
+    w = rng.normal(size=N)
+    np.testing.assert_allclose(D.rmatvec(w), D.matrix().T @ w, atol=1e-12)
+
+
+def test_secant_with_fewer_pairs_is_exact_along_the_steps_and_zero_across(rng):
+    N, n = 50, 5
+    A, J0 = rng.normal(size=(N, n)), rng.normal(size=(N, n))
+    S = rng.normal(scale=0.1, size=(2, n))
+    D = SecantCorrection(ridge=1e-12, min_step=0.0).fit(S, S @ (A - J0).T)
+    np.testing.assert_allclose((J0 + D.matrix()) @ S.T, A @ S.T, atol=1e-8)  # the secant condition
+    across = np.linalg.svd(S)[2][-1]                                        # a direction no step took
+    np.testing.assert_allclose(D.matvec(across), 0.0, atol=1e-8)            # least change
+
+
+def test_secant_safeguards_small_steps_ridge_and_memory(rng):
+    S = np.array([[0.001, 0.0], [0.2, 0.0], [0.0, 0.3], [0.1, 0.1]])
+    R = rng.normal(size=(4, 10))
+    D = SecantCorrection(ridge=0.0, min_step=0.01, memory=2).fit(S, R)
+    assert D.n_pairs_ == 2                                   # tiny step dropped, oldest beyond memory dropped
+    np.testing.assert_allclose(D.matvec(S[3]), R[3], atol=1e-10)
+    shrunk = SecantCorrection(ridge=10.0, min_step=0.0).fit(S, R)
+    assert np.linalg.norm(shrunk.matrix()) < 0.1 * np.linalg.norm(SecantCorrection(ridge=0.0, min_step=0.0).fit(S, R).matrix())
+    with pytest.raises(ConfigError, match='ridge'):
+        SecantCorrection(ridge=-1)
+    empty = SecantCorrection(min_step=1.0).fit(S, R)
+    assert empty.n_pairs_ == 0 and np.all(empty.matrix() == 0)
+
+
+def test_broyden_update_satisfies_the_secant_condition(rng):
+    J, s, y = rng.normal(size=(20, 4)), rng.normal(size=4), rng.normal(size=20)
+    J1 = broyden_update(J, s, y)
+    np.testing.assert_allclose(J1 @ s, y, atol=1e-12)
+    t = np.linalg.svd(s[None])[2][-1]
+    np.testing.assert_allclose(J1 @ t, J @ t, atol=1e-12)
+    np.testing.assert_array_equal(broyden_update(J, np.zeros(4), y), J)
+
+
+def test_the_rule_learns_a_linear_plant_the_prior_gets_wrong(rng):
+    # Jacobian-only mode: the plant is linear with Jacobian A, the rule is told J0 each time
+    N, n = 120, 4
+    A = rng.normal(size=(N, n))
+    J0 = A * rng.uniform(0.5, 1.5, n) + 0.3 * rng.normal(size=(N, n))
+    target = A @ np.array([0.3, 0.4, 0.2, 0.5]) + 0.2 * rng.normal(size=N)
+    rule = AdaptiveUpdate(secant_min_step=0.0, damping=0.0)
+    best = lsq_linear(A, target, bounds=(0, 0.65)).x
+    U, history = np.full(n, 0.1), []
+    for k in range(12):
+        field = A @ U
+        step = rule.step(UpdateInput(k, U, target - field, J0, np.ones(n, bool), None, target=target,
+                                     history=tuple(history)))
+        history.append(PastIteration(U, field, None, step.info))
+        U = step.U_next
+    err = np.mean((A @ U - target) ** 2)
+    assert err <= 1.02 * np.mean((A @ best - target) ** 2)
+
+
+# -- the per-fan factorisation and fit ------------------------------------------------------------
+@pytest.mark.parametrize('sparse', [False, True])
+def test_fan_basis_reproduces_the_prior(rig, prior, rng, sparse):
+    basis = FanBasis.from_term(prior, rig.key_points, sparse=sparse)
+    atol = 5e-3 if sparse else 1e-9  # a sparse basis drops footprint values below 1e-4 of the peak
+    for _ in range(3):
+        U = rng.uniform(0, 0.8, 7)
+        a, da = basis.thrust(U)
+        np.testing.assert_allclose(basis.offset + basis.shape @ a, prior(U, rig.key_points), atol=atol)
+        np.testing.assert_allclose(basis.shape @ np.diag(da), prior.jacobian(U, rig.key_points), atol=atol)
+    assert basis.monotone
+    t = basis.thrust(np.full(7, 0.37))[0]
+    np.testing.assert_allclose(basis.invert(t, np.zeros(7), np.ones(7)), 0.37, atol=1e-7)
+
+
+def test_fan_basis_refuses_a_prior_whose_fans_do_not_superpose(rig):
+    jets = FanJets(rig.fans, **JETS)
+    with pytest.raises(ConfigError, match='superpose'):
+        FanBasis.from_term(jets * jets, rig.key_points)
+
+
+def test_shape_fit_recovers_a_weak_fan_and_a_shifted_jet(rig, prior, rng):
+    kp = rig.key_points
+    basis = FanBasis.from_term(prior, kp)
+    fit = ShapeFit(noise_std=0.01)
+    truth = fit.prior(7)[0].copy()
+    truth[1 + 3] = 0.8            # gain of HM2
+    truth[1 + 7 + 0] = 0.015      # LM1's jet lands 1.5 cm towards +x
+    S = fit.shape_matrix(basis, truth)
+    maps = []
+    for _ in range(3):
+        U = rng.uniform(0.2, 0.6, 7)
+        maps.append((U, basis.offset + S @ basis.thrust(U)[0] + 0.01 * rng.normal(size=len(kp)), np.ones(len(kp))))
+    theta = fit.fit(basis, maps, rig.fans.enabled)
+    assert theta[1 + 3] == pytest.approx(0.8, abs=0.01)
+    assert theta[1 + 7 + 0] == pytest.approx(0.015, abs=0.002)
+
+
+def test_sparse_jacobian_equals_the_dense_one_on_a_wall(rng):
+    fans = FanArray.grid(16, 16, 0.08)
+    kp = rect_key_points(0.64, 0.64, 30, 30)
+    term = paper_prior(fans)
+    U = rng.uniform(0, 0.65, fans.n_fans)
+    np.testing.assert_allclose(term.sparse_jacobian(U, kp, tol=1e-12).toarray(), term.jacobian(U, kp), atol=1e-10)
+    loose = term.sparse_jacobian(U, kp, tol=1e-3)
+    assert loose.nnz < 0.5 * kp.shape[0] * fans.n_fans
+    np.testing.assert_allclose(loose.toarray(), term.jacobian(U, kp), atol=2e-3 * np.abs(term.jacobian(U, kp)).max())
+
+
+def test_the_wall_path_keeps_bounds_and_improves_a_reachable_target(rng):
+    fans = FanArray.grid(10, 10, 0.08).with_disabled(['F00_00', 'F05_05'])
+    kp = rect_key_points(0.4, 0.4, 30, 30)
+    geo = TunnelGeometry(fans, kp)
+    term = paper_prior(fans)
+    U_star = np.where(fans.enabled, rng.uniform(0.2, 0.5, fans.n_fans), 0.0)
+    target = term(U_star, kp)
+    basis = FanBasis.from_term(term, kp, sparse=True)
+    rule = AdaptiveUpdate()
+    U, history = np.where(fans.enabled, 0.3, 0.0), []
+    from wind_shaper.control import solvers
+    solvers._BASIS_CACHE.clear()
+    solvers._BASIS_CACHE[(id(term), kp.shape, float(np.sum(kp)))] = (term, basis)  # force the sparse path
+    errors = []
+    for k in range(4):
+        field = term(U, kp)
+        errors.append(np.mean((field - target) ** 2))
+        step = rule.step(UpdateInput(k, U, target - field, None, fans.enabled, None, model=term,
+                                     key_points=geo.key_points, target=target, history=tuple(history)))
+        assert step.info['mode'] in ('prior', 'gain')
+        history.append(PastIteration(U, field, None, step.info))
+        U = step.U_next
+        assert np.all((U >= 0) & (U <= 0.65)) and np.all(U[~fans.enabled] == 0)
+    solvers._BASIS_CACHE.clear()
+    assert np.mean((term(U, kp) - target) ** 2) < 0.05 * errors[0]
+
+
+# -- the stopping rule ----------------------------------------------------------------------------
+def test_stopping_rule_compares_predicted_gain_with_the_estimate_noise():
+    rule = StoppingRule(factor=1.0, floor=0.1, patience=2, min_iterations=2)
+    std = np.full(10, 0.1)  # noise = 0.01 + 0.01 = 0.02 N^2
+    assert rule.noise(std) == pytest.approx(0.02)
+    assert rule.quiet(0.01, std) and not rule.quiet(0.05, std)
+    quiet = PastIteration(np.zeros(2), np.zeros(10), None, {'quiet': True})
+    loud = PastIteration(np.zeros(2), np.zeros(10), None, {'quiet': False})
+    assert rule(5, 0.01, std, [loud, quiet])[0]            # two quiet in a row
+    assert not rule(5, 0.01, std, [quiet, loud])[0]        # only one
+    assert not rule(0, 0.0, std, [quiet] * 3)[0]           # never before min_iterations
+    assert not rule(5, 0.05, std, [quiet] * 3)[0]
+
+
+def test_stopping_rule_fires_on_a_converged_run_and_not_on_a_fresh_one(rig, prior):
+    """On a tunnel that is the model (plus sweep noise) the run converges in a few iterations."""
+    from test_calibration_and_loop import ModelPlant
+    plant = ModelPlant(rig, prior, noise=0.05, seed=3)
+    kp = rig.key_points
+    # 7 fans cannot make the ripple: the best reachable error is well above zero
+    target = prior(np.array([0.45, 0.3, 0.5, 0.35, 0.4, 0.3, 0.1]), kp) + 0.4 * np.cos(25 * kp[:, 0])
+    loop = ShapingLoop(plant, prior, target, AdaptiveUpdate(), FieldEstimator(), u0=0.5,
+                       truth=lambda U: prior(U, kp))
+    history = loop.run(8)
+    flags = [r.info.get('stop') for r in history[:-1]]
+    assert flags[0] is False and flags[1] is False           # a fresh run: far from done
+    first = flags.index(True)                                # it does fire ...
+    errors = [r.true_error for r in history]
+    assert errors[first + 1] <= 1.05 * min(errors)           # ... once little is left to gain
+    stopped = ShapingLoop(ModelPlant(rig, prior, noise=0.05, seed=3), prior, target, AdaptiveUpdate(),
+                          FieldEstimator(), u0=0.5).run(8, stop_early=True)
+    assert len(stopped) == first + 2 and stopped[-1].next_pwm is None
+
+
+# -- configuration ----------------------------------------------------------------------------------
+def test_make_rule_builds_both_methods_from_one_section():
+    cfg = ShapingConfig(update={'method': 'adaptive', 'gain': 0.8, 'rcond': 1e-3, 'radius': 0.3})
+    rule = cfg.make_rule()
+    assert isinstance(rule, AdaptiveUpdate) and rule.radius == 0.3 and rule.step_fraction == 1.0
+    assert cfg.make_rule(gain=0.5).step_fraction == 0.5           # CLI --gain: fraction of the step
+    paper = cfg.make_rule(method='paper')
+    assert isinstance(paper, PaperUpdate) and paper.gain == 0.8 and paper.rcond == 1e-3
+    with pytest.raises(ConfigError, match='bogus'):
+        ShapingConfig(update={'method': 'adaptive', 'bogus': 1}).make_rule()
+    with pytest.raises(ConfigError, match='adaptive or paper'):
+        ShapingConfig(update={'method': 'newton'}).make_rule()
+    with pytest.raises(ConfigError, match='radii'):
+        AdaptiveUpdate(radius=0.0)
+
+
+# -- estimation for large walls ------------------------------------------------------------------
+def _smooth(P):
+    return 3.0 + 1.5 * np.exp(-((P[:, 0] - 0.1) ** 2 + (P[:, 1] + 0.05) ** 2) / 0.03) + 4.0 * (P ** 2).sum(1)
+
+
+def test_local_gp_agrees_with_the_exact_gp(rng):
+    P = rng.uniform(-0.5, 0.5, (900, 2))
+    F = _smooth(P) + 0.1 * rng.normal(size=900)
+    Q = rect_key_points(0.45, 0.45, 30, 30)
+    exact_mean, exact_std = GaussianProcessField(0.1, 0.1).fit(P, F).predict(Q, True)
+    local_mean, local_std = LocalGaussianProcessField(0.1, 0.1, block=0.2, halo=0.2).fit(P, F).predict(Q, True)
+    assert np.sqrt(np.mean((local_mean - exact_mean) ** 2)) < 0.01
+    assert np.max(np.abs(local_std - exact_std)) < 0.01
+    assert FieldEstimator().make_gp(5000).__class__ is LocalGaussianProcessField
+    assert FieldEstimator().make_gp(500).__class__ is GaussianProcessField
+    with pytest.raises(ConfigError, match='auto, exact or local'):
+        FieldEstimator(method='fast')
+
+
+def test_gp_hyperparameters_are_estimated_inside_their_bounds(rng):
+    P = rng.uniform(-0.4, 0.4, (300, 2))
+    F = _smooth(P) + 0.2 * rng.normal(size=300)
+    hp = fit_hyperparameters(P, F)
+    assert hp['noise_std'] == pytest.approx(0.2, rel=0.3)
+    tight = fit_hyperparameters(P, F, noise_std_bounds=(0.01, 0.05), length_scale_bounds=(0.2, 0.25))
+    assert tight['noise_std'] <= 0.05 + 1e-9 and 0.2 - 1e-9 <= tight['length_scale'] <= 0.25 + 1e-9
+    gp = GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std']).fit(P, F)
+    worse = GaussianProcessField(0.1, 0.01).fit(P, F)
+    assert gp.log_marginal_likelihood() > worse.log_marginal_likelihood()

@@ -1,0 +1,63 @@
+"""Algorithm 1's update: the pseudo-inverse step, the schedule, bounds and disabled fans."""
+import numpy as np
+import pytest
+
+from wind_shaper.core.errors import ConfigError
+from wind_shaper.control.update import CommandBounds, PaperUpdate, UpdateInput
+
+
+def test_schedule_is_the_papers():
+    rule = PaperUpdate()
+    assert [round(rule.step_size(k), 6) for k in range(4)] == [0.8, 0.4, 0.266667, 0.2]
+
+
+def test_step_solves_a_linear_problem_scaled_by_lambda(rng):
+    J = rng.normal(size=(50, 4))
+    du = np.array([0.1, -0.05, 0.02, 0.0])
+    U = np.full(4, 0.3)
+    step = PaperUpdate(gain=0.8).step(UpdateInput(0, U, J @ du, J, np.ones(4, bool)))
+    np.testing.assert_allclose(step.raw_step, du, atol=1e-12)
+    np.testing.assert_allclose(step.U_next, U + 0.8 * du, atol=1e-12)
+
+
+def test_commands_never_leave_bounds_and_disabled_fans_stay_zero(rng):
+    rule = PaperUpdate(bounds=CommandBounds(0.0, 0.65))
+    enabled = np.array([True, True, False, True])
+    for k in range(200):
+        J = rng.normal(size=(30, 4)) * rng.uniform(0.01, 10)
+        delta = rng.normal(size=30) * rng.uniform(0.1, 100)
+        U = rng.uniform(0, 0.65, 4) * enabled
+        out = rule.step(UpdateInput(k % 12, U, delta, J, enabled)).U_next
+        assert np.all(out >= 0.0) and np.all(out <= 0.65)
+        assert out[2] == 0.0
+
+
+def test_disabled_fans_do_not_take_part_in_the_solve(rng):
+    J = rng.normal(size=(40, 3))
+    J[:, 1] = J[:, 0]  # a disabled fan identical to fan 0 would otherwise split the step
+    du = np.array([0.1, 0.0, 0.05])
+    enabled = np.array([True, False, True])
+    step = PaperUpdate().step(UpdateInput(0, np.full(3, 0.3), J @ du, J, enabled))
+    np.testing.assert_allclose(step.raw_step, du, atol=1e-12)
+
+
+def test_bad_bounds_and_nan_are_refused():
+    with pytest.raises(ConfigError, match='u_min < u_max'):
+        CommandBounds(0.7, 0.6)
+    with pytest.raises(ConfigError, match='u_max <= 1'):
+        CommandBounds(0.0, 1.5)
+    with pytest.raises(ConfigError, match='NaN'):
+        CommandBounds().project(np.array([0.1, np.nan]), np.ones(2, bool))
+
+
+def test_a_nearly_flat_fan_is_not_thrown_to_full_pwm(rng):
+    # A fan idling at PWM ~0 with a flat thrust curve has a ~zero Jacobian column; inverting
+    # that singular value (machine-precision cut-off) would make a huge step for it.
+    J = rng.normal(size=(60, 3))
+    J[:, 2] *= 1e-6
+    delta = rng.normal(size=60)
+    U = np.array([0.3, 0.3, 1e-5])
+    safe = PaperUpdate().step(UpdateInput(0, U, delta, J, np.ones(3, bool)))
+    assert abs(safe.raw_step[2]) < 1.0
+    naive = PaperUpdate(rcond=1e-15).step(UpdateInput(0, U, delta, J, np.ones(3, bool)))
+    assert abs(naive.raw_step[2]) > 100  # what the cut-off prevents

@@ -1,0 +1,339 @@
+"""Field estimation: GET_CLOSEST subsampling of a sweep and Gaussian-process regression.
+
+Positions are plate centres [m, tunnel frame]; forces are vertical plate forces [N].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve, LinAlgError, solve_triangular
+from scipy.optimize import minimize
+from scipy.spatial import cKDTree
+
+from ..core.errors import ConfigError, SweepError
+from ..core.tunnel import Sweep
+
+
+def get_closest(sample_positions: np.ndarray, key_points: np.ndarray) -> np.ndarray:
+    """Index of the sample nearest to each key point (the paper's GET_CLOSEST).
+
+    sample_positions: (M, 2) [m]; key_points: (N, 2) [m]. Returns (N,) indices into the
+    samples. Two key points may share a sample; ``closest_samples`` drops such repeats.
+    """
+    sample_positions = np.asarray(sample_positions, dtype=float)
+    if len(sample_positions) == 0:
+        raise SweepError('the sweep has no samples: record a sweep before estimating the field')
+    _, idx = cKDTree(sample_positions).query(np.asarray(key_points, dtype=float))
+    return np.asarray(idx, dtype=int)
+
+
+@dataclass(frozen=True)
+class Subsample:
+    """The samples picked for the GP. positions (n, 2) [m], forces (n,) [N], and for each key
+    point the distance [m] to its nearest sample (coverage)."""
+
+    positions: np.ndarray
+    forces: np.ndarray
+    key_distance: np.ndarray
+
+
+def closest_samples(sweep: Sweep, key_points: np.ndarray) -> Subsample:
+    """GET_CLOSEST on a sweep: finite samples only, each picked sample used once."""
+    clean = sweep.finite()
+    if len(clean) == 0:
+        raise SweepError(f'none of the sweep\'s {len(sweep)} samples is finite: check the force '
+                         f'sensor and motion-capture streams')
+    idx = get_closest(clean.positions, key_points)
+    dist = np.linalg.norm(clean.positions[idx] - key_points, axis=1)
+    unique = np.unique(idx)
+    return Subsample(clean.positions[unique], clean.forces[unique], dist)
+
+
+class GaussianProcessField:
+    """GP regression of the force field with a squared-exponential kernel.
+
+    k(z1, z2) = signal_std^2 exp(-|z1 - z2|^2 / (2 length_scale^2)) + noise_std^2 [z1 == z2].
+    length_scale [m] (paper: 0.10, half the plate side); noise_std [N] (turbulence on single
+    samples); signal_std [N], when None, is taken from the data's spread. The prior mean is
+    the data's mean (the paper's zero mean would pull the field to 0 away from samples).
+
+    ``fit(positions, forces)`` returns self; fitted state ends in ``_``.
+    """
+
+    def __init__(self, length_scale: float = 0.10, noise_std: float = 0.05,
+                 signal_std: float | None = None):
+        if not length_scale > 0:
+            raise ConfigError(f'GP length_scale must be > 0 m, got {length_scale}')
+        if not noise_std >= 0:
+            raise ConfigError(f'GP noise_std must be >= 0 N, got {noise_std}')
+        if signal_std is not None and not signal_std > 0:
+            raise ConfigError(f'GP signal_std must be > 0 N or None, got {signal_std}')
+        self.length_scale = length_scale
+        self.noise_std = noise_std
+        self.signal_std = signal_std
+
+    def kernel(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """Signal covariance between point sets A (n, 2) and B (m, 2) [N^2]."""
+        sq = (np.sum(A * A, 1)[:, None] + np.sum(B * B, 1)[None, :] - 2.0 * A @ B.T)
+        np.maximum(sq, 0.0, out=sq)
+        return self.signal_var_ * np.exp(-sq / (2.0 * self.length_scale ** 2))
+
+    def fit(self, positions: np.ndarray, forces: np.ndarray) -> 'GaussianProcessField':
+        X = np.asarray(positions, dtype=float).reshape(-1, 2)
+        y = np.asarray(forces, dtype=float).ravel()
+        if len(X) != len(y):
+            raise SweepError(f'{len(X)} positions but {len(y)} forces')
+        if len(y) < 3:
+            raise SweepError(f'only {len(y)} samples: a field estimate needs at least 3; sweep '
+                             f'the plate over the whole operating area')
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
+            raise SweepError('positions or forces contain NaN or inf: drop those samples first')
+        self.X_, self.y_ = X, y
+        self.mean_ = float(np.mean(y))
+        spread = float(np.std(y))
+        self.signal_var_ = (self.signal_std if self.signal_std is not None
+                            else max(spread, 1e-3)) ** 2
+        K = self.kernel(X, X)
+        # A floor on the diagonal keeps near-duplicate positions from making K singular.
+        jitter = max(self.noise_std ** 2, 1e-8 * self.signal_var_)
+        K[np.diag_indices_from(K)] += jitter
+        try:
+            self.chol_ = cho_factor(K, lower=True, check_finite=False)
+        except LinAlgError:
+            raise SweepError('the GP covariance is singular (many samples at the same place): '
+                             'raise noise_std or sweep over more distinct positions') from None
+        self.alpha_ = cho_solve(self.chol_, y - self.mean_, check_finite=False)
+        return self
+
+    def predict(self, points: np.ndarray, return_std: bool = False):
+        """Posterior mean (K,) [N] at points (K, 2) [m], and its standard deviation [N]."""
+        if not hasattr(self, 'alpha_'):
+            raise SweepError('the GP is not fitted yet: call fit(positions, forces) first')
+        Q = np.asarray(points, dtype=float).reshape(-1, 2)
+        Ks = self.kernel(Q, self.X_)
+        mean = self.mean_ + Ks @ self.alpha_
+        if not return_std:
+            return mean
+        # var = k(q, q) - |L^-1 k(X, q)|^2: one triangular solve, half the work of cho_solve
+        v = solve_triangular(self.chol_[0], Ks.T, lower=self.chol_[1], check_finite=False)
+        var = self.signal_var_ - np.einsum('ij,ij->j', v, v)
+        return mean, np.sqrt(np.maximum(var, 0.0))
+
+    def log_marginal_likelihood(self) -> float:
+        """log p(forces | positions) of the fitted GP [nats]."""
+        if not hasattr(self, 'alpha_'):
+            raise SweepError('the GP is not fitted yet: call fit(positions, forces) first')
+        L = self.chol_[0]
+        r = self.y_ - self.mean_
+        return float(-0.5 * r @ self.alpha_ - np.sum(np.log(np.diag(L)))
+                     - 0.5 * len(r) * np.log(2 * np.pi))
+
+
+#: Bounds of the GP hyperparameters when they are estimated from a sweep: length scale [m]
+#: (the plate's 20 cm averaging makes anything much below 5 cm implausible), noise [N] and
+#: signal standard deviation [N].
+LENGTH_SCALE_BOUNDS = (0.05, 0.30)
+NOISE_STD_BOUNDS = (0.01, 0.5)
+SIGNAL_STD_BOUNDS = (0.05, 20.0)
+
+
+def fit_hyperparameters(positions, forces, *, length_scale=0.10, noise_std=0.05, signal_std=None,
+                        length_scale_bounds=LENGTH_SCALE_BOUNDS, noise_std_bounds=NOISE_STD_BOUNDS,
+                        signal_std_bounds=SIGNAL_STD_BOUNDS, max_iter: int = 30) -> dict:
+    """Type-II maximum likelihood of (length_scale [m], noise_std [N], signal_std [N]) of the
+    squared-exponential GP on samples (n, 2) [m] -> (n,) [N], each kept inside its bounds
+    (L-BFGS-B on the logs, analytic gradient, starting from the given values). Returns
+    ``{'length_scale', 'noise_std', 'signal_std', 'log_likelihood'}``."""
+    X = np.asarray(positions, dtype=float).reshape(-1, 2)
+    y = np.asarray(forces, dtype=float).ravel()
+    if len(y) < 10:
+        raise SweepError(f'{len(y)} samples are too few to estimate GP hyperparameters (need 10)')
+    r = y - np.mean(y)
+    sq = np.maximum(np.sum(X * X, 1)[:, None] + np.sum(X * X, 1)[None, :] - 2.0 * X @ X.T, 0.0)
+    bounds = np.log(np.array([length_scale_bounds, noise_std_bounds, signal_std_bounds], dtype=float))
+    s0 = signal_std if signal_std is not None else max(float(np.std(y)), 1e-3)
+    x0 = np.clip(np.log([length_scale, noise_std, s0]), bounds[:, 0], bounds[:, 1])
+    n = len(y)
+
+    def nll(x):
+        ell, sn, sf = np.exp(x)
+        E = np.exp(-sq / (2 * ell ** 2))
+        K = sf ** 2 * E
+        K[np.diag_indices(n)] += sn ** 2 + 1e-10 * sf ** 2
+        try:
+            L = np.linalg.cholesky(K)
+        except np.linalg.LinAlgError:
+            return 1e25, np.zeros(3)
+        alpha = cho_solve((L, True), r, check_finite=False)
+        Kinv = cho_solve((L, True), np.eye(n), check_finite=False)
+        value = 0.5 * r @ alpha + np.sum(np.log(np.diag(L)))
+        W = np.outer(alpha, alpha) - Kinv  # d(-nll)/dK
+        dK_ell = sf ** 2 * E * sq / ell ** 2  # dK / dlog(ell)
+        grad = -0.5 * np.array([np.sum(W * dK_ell), 2 * sn ** 2 * np.trace(W),
+                                np.sum(W * (2 * sf ** 2 * E))])
+        return value, grad
+
+    sol = minimize(nll, x0, jac=True, method='L-BFGS-B', bounds=bounds,
+                   options={'maxiter': max_iter})
+    ell, sn, sf = np.exp(np.clip(sol.x, bounds[:, 0], bounds[:, 1]))
+    return {'length_scale': float(ell), 'noise_std': float(sn), 'signal_std': float(sf),
+            'log_likelihood': float(-sol.fun - 0.5 * n * np.log(2 * np.pi))}
+
+
+class LocalGaussianProcessField(GaussianProcessField):
+    """The same GP, solved tile by tile for large areas.
+
+    The query area is cut into square tiles of side ``block`` [m]; each tile's posterior uses
+    only the samples within ``halo`` [m] of the tile (the squared-exponential kernel's weight
+    has all but vanished ~2 length scales away when samples are dense), with the global prior
+    mean and signal variance. Cost grows linearly with the area (about (block + 2 halo)^6 /
+    block^2 per unit area) instead of with the cube of the sample count, and memory with one
+    tile. ``fit`` stores the samples; the work happens in ``predict``.
+    """
+
+    def __init__(self, length_scale: float = 0.10, noise_std: float = 0.05,
+                 signal_std: float | None = None, block: float = 0.10, halo: float = 0.15):
+        super().__init__(length_scale, noise_std, signal_std)
+        if not (block > 0 and halo >= 0):
+            raise ConfigError(f'local GP needs block > 0 and halo >= 0 [m]; got {block}, {halo}')
+        self.block, self.halo = float(block), float(halo)
+
+    def fit(self, positions, forces) -> 'LocalGaussianProcessField':
+        X = np.asarray(positions, dtype=float).reshape(-1, 2)
+        y = np.asarray(forces, dtype=float).ravel()
+        if len(X) != len(y):
+            raise SweepError(f'{len(X)} positions but {len(y)} forces')
+        if len(y) < 3:
+            raise SweepError(f'only {len(y)} samples: a field estimate needs at least 3')
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(y))):
+            raise SweepError('positions or forces contain NaN or inf: drop those samples first')
+        self.X_, self.y_ = X, y
+        self.mean_ = float(np.mean(y))
+        self.signal_var_ = (self.signal_std if self.signal_std is not None
+                            else max(float(np.std(y)), 1e-3)) ** 2
+        self.tree_ = cKDTree(X)
+        return self
+
+    def predict(self, points, return_std: bool = False):
+        if not hasattr(self, 'tree_'):
+            raise SweepError('the GP is not fitted yet: call fit(positions, forces) first')
+        Q = np.asarray(points, dtype=float).reshape(-1, 2)
+        mean = np.full(len(Q), self.mean_)
+        std = np.full(len(Q), np.sqrt(self.signal_var_))
+        cell = np.floor((Q - Q.min(axis=0)) / self.block).astype(np.int64)
+        key = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
+        order = np.argsort(key, kind='stable')
+        _, first = np.unique(key[order], return_index=True)
+        ends = np.append(first, len(order))
+        jitter = max(self.noise_std ** 2, 1e-8 * self.signal_var_)
+        # each tile's sample box: its query points' bounding box grown by the halo
+        tiles = [order[a:b] for a, b in zip(ends[:-1], ends[1:])]
+        lo = np.array([Q[t].min(axis=0) for t in tiles]) - self.halo
+        hi = np.array([Q[t].max(axis=0) for t in tiles]) + self.halo
+        centres, halves = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        candidates = self.tree_.query_ball_point(centres, np.hypot(halves[:, 0], halves[:, 1]))
+        for rows, centre, half, near in zip(tiles, centres, halves, candidates):
+            if not near:
+                continue
+            q = Q[rows]
+            near = np.asarray(near)
+            Xl = self.X_[near]
+            inside = np.all(np.abs(Xl - centre) <= half, axis=1)
+            Xl, yl = Xl[inside], self.y_[near[inside]]
+            if len(yl) == 0:
+                continue
+            K = self.kernel(Xl, Xl)
+            K[np.diag_indices_from(K)] += jitter
+            try:
+                L = np.linalg.cholesky(K)
+            except np.linalg.LinAlgError:
+                raise SweepError('the GP covariance is singular (many samples at the same place): '
+                                 'raise noise_std or sweep over more distinct positions') from None
+            alpha = cho_solve((L, True), yl - self.mean_, check_finite=False)
+            Ks = self.kernel(q, Xl)
+            mean[rows] = self.mean_ + Ks @ alpha
+            if return_std:
+                v = solve_triangular(L, Ks.T, lower=True, check_finite=False)
+                std[rows] = np.sqrt(np.maximum(self.signal_var_ - np.einsum('ij,ij->j', v, v), 0.0))
+        return (mean, std) if return_std else mean
+
+
+@dataclass(frozen=True)
+class FieldEstimate:
+    """The estimated field at the key points: mean and std (N,) [N], coverage (N,) [m]."""
+
+    key_points: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+    key_distance: np.ndarray
+    n_used: int
+
+
+@dataclass(frozen=True)
+class FieldEstimator:
+    """Sweep -> field at the key points, with the checks a lab needs before trusting it.
+
+    min_samples: fewer finite samples than this is an error; max_gap [m]: a key point whose
+    nearest sample is farther than this means the sweep missed part of the area.
+    """
+
+    length_scale: float = 0.10
+    noise_std: float = 0.05
+    signal_std: float | None = None
+    min_samples: int = 50
+    max_gap: float = 0.08
+    #: exact: one GP on all picked samples; local: ``LocalGaussianProcessField`` (large walls);
+    #: auto: local above ``max_exact`` picked samples.
+    method: str = 'auto'
+    max_exact: int = 2000
+    local_block: float = 0.20
+    local_halo: float = 0.15
+    #: estimate length_scale, noise_std and signal_std from each sweep (type-II maximum
+    #: likelihood inside the bounds below, starting from the values above); exact GP only.
+    fit_hyperparameters: bool = False
+    length_scale_bounds: tuple = LENGTH_SCALE_BOUNDS
+    noise_std_bounds: tuple = NOISE_STD_BOUNDS
+
+    def __post_init__(self):
+        if self.method not in ('auto', 'exact', 'local'):
+            raise ConfigError(f'estimator method must be auto, exact or local; got {self.method!r}')
+        for name in ('length_scale_bounds', 'noise_std_bounds'):
+            lo, hi = (float(v) for v in getattr(self, name))
+            if not 0 < lo <= hi:
+                raise ConfigError(f'estimator {name} must be (low, high) with 0 < low <= high; got '
+                                  f'{getattr(self, name)}')
+            object.__setattr__(self, name, (lo, hi))
+
+    def make_gp(self, n_samples: int, positions=None, forces=None) -> GaussianProcessField:
+        """The GP this estimator uses for ``n_samples`` picked samples (hyperparameters
+        estimated from positions/forces when ``fit_hyperparameters``)."""
+        local = self.method == 'local' or (self.method == 'auto' and n_samples > self.max_exact)
+        if local:
+            return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
+                                             self.local_block, self.local_halo)
+        if self.fit_hyperparameters and positions is not None:
+            hp = fit_hyperparameters(positions, forces, length_scale=self.length_scale,
+                                     noise_std=self.noise_std, signal_std=self.signal_std,
+                                     length_scale_bounds=self.length_scale_bounds,
+                                     noise_std_bounds=self.noise_std_bounds)
+            return GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std'])
+        return GaussianProcessField(self.length_scale, self.noise_std, self.signal_std)
+
+    def estimate(self, sweep: Sweep, key_points: np.ndarray) -> FieldEstimate:
+        clean = sweep.finite()
+        if len(clean) < self.min_samples:
+            raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
+                             f'{self.min_samples} are needed: sweep longer or check the streams')
+        sub = closest_samples(clean, key_points)
+        far = sub.key_distance > self.max_gap
+        if np.any(far):
+            worst = int(np.argmax(sub.key_distance))
+            raise SweepError(
+                f'the sweep missed {int(far.sum())} of {len(key_points)} key points (nearest sample '
+                f'farther than {self.max_gap} m; worst {sub.key_distance[worst]:.3f} m at '
+                f'{np.round(key_points[worst], 3).tolist()}): sweep the plate over the whole area')
+        gp = self.make_gp(len(sub.forces), sub.positions, sub.forces)
+        gp.fit(sub.positions, sub.forces)
+        mean, std = gp.predict(key_points, return_std=True)
+        return FieldEstimate(np.asarray(key_points, float), mean, std, sub.key_distance, len(sub.forces))

@@ -1,0 +1,55 @@
+"""Model files: a fitted prior saved as YAML, loadable for any fan array of the same groups."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from ..core.errors import ModelFileError
+from ..core.geometry import FanArray
+from .terms import Term, term_from_dict
+
+FORMAT_VERSION = 1
+
+
+def save_model(path, model: Term, **meta) -> Path:
+    """Write ``model`` (and free-form metadata: where it was fitted, its RMSE) to ``path``.
+
+    Written to a temporary file first and renamed, so a crash never leaves half a model."""
+    path = Path(path)
+    doc = {'wind_shaper_model': FORMAT_VERSION, **meta, 'model': model.to_dict()}
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    tmp.replace(path)
+    return path
+
+
+def load_model(path, fans: FanArray) -> Term:
+    """Read a model file written by ``save_model`` and build it for ``fans``."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ModelFileError(f'model file {path} does not exist: fit one with '
+                             f'`wind-shaper calibrate --sim --out {path}`') from None
+    except OSError as exc:
+        raise ModelFileError(f'model file {path} cannot be read ({exc})') from None
+    return model_from_text(text, fans, source=str(path))
+
+
+def model_from_text(text: str, fans: FanArray, source: str = 'model text') -> Term:
+    """Build a model from the text of a model file (e.g. one sent over a service).
+    ``source`` names it in error messages."""
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ModelFileError(f'{source} is not readable YAML ({exc}); restore it or fit a new '
+                             f'one with `wind-shaper calibrate`') from None
+    if not isinstance(doc, dict) or doc.get('wind_shaper_model') != FORMAT_VERSION or 'model' not in doc:
+        raise ModelFileError(f'{source} is not a wind_shaper model file (version {FORMAT_VERSION} '
+                             f'with a "model" section); fit one with `wind-shaper calibrate`')
+    try:
+        return term_from_dict(doc['model'], fans)
+    except ModelFileError as exc:
+        raise ModelFileError(f'{source}: {exc}') from None
