@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
-from wind_shaper.control.loop import ShapingLoop  # noqa: E402
+from wind_shaper.control import ShapingLoop  # noqa: E402
 
 TARGETS = ['uniform', 'gaussian@LM1', 'parabolic', 'expr:2.5 + 0.5*cos(3*theta)*r/0.3']
 DISABLED = [(), ('CM',)]

@@ -41,8 +41,8 @@ import numpy as np  # noqa: E402
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.estimation.field import FieldEstimator, GaussianProcessField, LocalGaussianProcessField, closest_samples  # noqa: E402
 from wind_shaper.core.geometry import FanArray, TunnelGeometry, rect_key_points  # noqa: E402
-from wind_shaper.control.loop import ShapingLoop  # noqa: E402
-from wind_shaper.model.terms import FanJets  # noqa: E402
+from wind_shaper.control import ShapingLoop  # noqa: E402
+from wind_shaper.model import FanJets  # noqa: E402
 from wind_shaper.sim import SimulatedTunnel  # noqa: E402
 
 PITCH = 0.08

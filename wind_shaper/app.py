@@ -9,14 +9,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .model.calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
-from .core.config import ShapingConfig, default_config_dir, load_geometry, load_shaping, read_yaml
+from .control import (IterationRecord, ShapingConfig, ShapingLoop, Target, check_reachable,
+                      load_shaping, make_target)
+from .core.config import default_config_dir, load_geometry, parse_spec, read_yaml
 from .core.geometry import TunnelGeometry
-from .control.loop import IterationRecord, ShapingLoop
-from .model.terms import Term, paper_prior
-from .model.modelfile import load_model, save_model
-from .control.reach import check_reachable
-from .control.targets import Target, make_target
+from .model import (CalibrationPlan, ModelFit, Term, collect_calibration, fit_model, load_model,
+                    paper_prior, save_model)
 
 
 @dataclass(frozen=True)
@@ -59,7 +57,7 @@ class Setup:
 
     def make_target(self, spec, model: Term | None = None) -> Target:
         """The target of ``spec``; with a ``model``, one the fans can plainly not deliver (per the
-        model, within the command bounds) is refused with a TargetError (core.reach)."""
+        model, within the command bounds) is refused with a TargetError (control.reach)."""
         fans = self.geometry.fans
         target = make_target(spec, fan_positions=fans.positions, fan_names=list(fans.names),
                              key_points=self.geometry.key_points)
@@ -75,7 +73,6 @@ def hidden_effects(specs: Sequence[str]) -> list:
     ``tilted_fan:fan=LM2,shift=0.04/0``; ``a/b`` is a vector), as ``--hidden`` takes them; for
     ``Setup.make_sim(effects=...)``."""
     from .sim import make_effect
-    from .workbench.commands import parse_spec
     out = []
     for text in specs or ():
         name, params = parse_spec(text)
@@ -110,12 +107,9 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
     model = model or setup.load_model()
     target = setup.make_target(target_spec, model=model)
     kp = setup.geometry.key_points
-    rule = setup.shaping.make_rule(**(rule_overrides or {}))
-    loop = ShapingLoop(sim, model, target.values(kp), rule,
-                       setup.shaping.make_estimator(),
-                       u0=setup.shaping.u0 if u0 is None else u0,
-                       n_samples=setup.shaping.samples_per_sweep,
-                       truth=lambda U: sim.true_field(U, kp))
+    loop = ShapingLoop.from_settings(sim, model, target.values(kp), setup.shaping, u0=u0,
+                                     rule_overrides=rule_overrides,
+                                     truth=lambda U: sim.true_field(U, kp))
     n = setup.shaping.iterations if iterations is None else iterations
     return loop.run(n, on_iteration), target
 

@@ -11,7 +11,7 @@ runs without a rig.
 """
 import numpy as np
 
-from wind_shaper.model.terms import Hyper, Term, register_term
+from wind_shaper.model import Hyper, Term, register_term
 from wind_shaper.workbench.library import Candidate
 
 

@@ -80,7 +80,7 @@ def test_shape_hidden_switches_on_a_simulator_effect(tmp_path, capsys):
 
 PLUGIN = '''
 import numpy as np
-from wind_shaper.model.terms import Hyper, Term, register_term
+from wind_shaper.model import Hyper, Term, register_term
 
 @register_term
 class Updraft(Term):

@@ -10,7 +10,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from wind_shaper.app import Setup, shape_on_sim
-from wind_shaper.control.solvers import AdaptiveUpdate
+from wind_shaper.control import AdaptiveUpdate
 
 WITHIN = 1.15
 

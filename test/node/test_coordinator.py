@@ -23,7 +23,7 @@ from wind_shaper_msgs.srv import EstimateField, RunIteration, SetModel, Sweep  #
 
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.cli.main import main as cli  # noqa: E402
-from wind_shaper.core.config import ShapingConfig  # noqa: E402
+from wind_shaper.control import ShapingConfig  # noqa: E402
 from wind_shaper.model.modelfile import save_model  # noqa: E402
 from wind_shaper.storage.runstore import RunStore  # noqa: E402
 from wind_shaper.nodes.coordinator import CoordinatorNode  # noqa: E402
@@ -341,7 +341,7 @@ def test_second_call_is_refused_and_cancel_keeps_the_commands(graph, fault_row):
     second = graph.iterate(target='uniform:2.0')
     assert not second.success and 'an iteration is running' in second.message
     assert time.monotonic() - t0 < 2.0  # refused at once, not queued
-    assert graph.coordinator._target_spec == 'parabolic'
+    assert graph.coordinator._run.target_spec == 'parabolic'
     # progress moves during the sweep, at 2 Hz
     n = len(graph.statuses)
     assert wait_until(lambda: len(graph.statuses) >= n + 2, timeout=3.0)
@@ -354,7 +354,7 @@ def test_second_call_is_refused_and_cancel_keeps_the_commands(graph, fault_row):
     np.testing.assert_array_equal(r.pwm_after, first.pwm_after)
     assert wait_until(lambda: graph.status().state == IterationStatus.STATE_CANCELLED)
     assert graph.store().last_completed() == 0  # the run did not advance
-    assert graph.coordinator._k == 1
+    assert graph.coordinator._run.k == 1
     np.testing.assert_array_equal(graph.rig.commands[-1], first.pwm_after)
     nothing = graph.call(graph.cancel, Trigger.Request())
     assert not nothing.success and 'no iteration is running' in nothing.message
@@ -404,13 +404,13 @@ def test_step_gain_override_scales_the_step(graph, paper_config):
 
 def test_set_model_swaps_the_prior_and_refuses_a_broken_one(graph, setup, tmp_path):
     node = graph.start_coordinator()
-    old = repr(node._model)
+    old = repr(node._run.model)
     model = setup.load_model()
     jets = model.k1.clone(sigma=0.2)
     path = save_model(tmp_path / 'model.yaml', jets + model.k2)
     r = graph.call(graph.set_model, SetModel.Request(model_yaml=path.read_text()))
     assert r.success, r.message
-    assert repr(node._model) != old and 'sigma=0.2' in repr(node._model)
+    assert repr(node._run.model) != old and 'sigma=0.2' in repr(node._run.model)
     assert 'sigma=0.2' in r.message
     for request, reason in [
             (SetModel.Request(model_yaml='wind_shaper_model: 1\nmodel: {kind: nope}\n'), 'nope'),
@@ -419,12 +419,12 @@ def test_set_model_swaps_the_prior_and_refuses_a_broken_one(graph, setup, tmp_pa
             (SetModel.Request(), 'model_yaml text or as a path')]:
         r = graph.call(graph.set_model, request)
         assert not r.success and reason in r.message, r.message
-        assert 'sigma=0.2' in repr(node._model)  # the good one stays
+        assert 'sigma=0.2' in repr(node._run.model)  # the good one stays
     r = graph.call(graph.set_model, SetModel.Request(path=str(setup.model_path)))
-    assert r.success and repr(node._model) == old
+    assert r.success and repr(node._run.model) == old
     # the prior set at run time is kept with the run and used again after a restart
     graph.stop_coordinator()
-    assert repr(graph.start_coordinator()._model) == old
+    assert repr(graph.start_coordinator()._run.model) == old
 
 
 def test_a_restart_resumes_at_the_next_iteration_with_the_same_commands(graph):
@@ -434,7 +434,7 @@ def test_a_restart_resumes_at_the_next_iteration_with_the_same_commands(graph):
     graph.stop_coordinator()
     n = len(graph.rig.commands)
     node = graph.start_coordinator(target='uniform:3.0')  # a new run's target: ignored here
-    assert node._k == 2 and node._target_spec == 'parabolic'
+    assert node._run.k == 2 and node._run.target_spec == 'parabolic'
     assert wait_until(lambda: len(graph.rig.commands) > n)  # published at start
     np.testing.assert_array_equal(graph.rig.commands[-1], results[-1].pwm_after)
     assert wait_until(lambda: graph.status() is not None and graph.status().iteration == 1
@@ -559,12 +559,12 @@ def test_cli_set_model_swaps_the_prior_and_keeps_it_on_a_bad_file(graph, capsys,
     model = setup.load_model()
     path = save_model(tmp_path / 'wider.yaml', model.k1.clone(sigma=0.2) + model.k2)
     assert cli(['set-model', str(path)]) == 0
-    assert 'now uses' in capsys.readouterr().out and 'sigma=0.2' in repr(node._model)
+    assert 'now uses' in capsys.readouterr().out and 'sigma=0.2' in repr(node._run.model)
     broken = tmp_path / 'broken.yaml'
     broken.write_text('wind_shaper_model: 1\nmodel: {kind: nope}\n')
     assert cli(['set-model', str(broken)]) == 1
     err = capsys.readouterr().err
-    assert 'the old one stays' in err and 'sigma=0.2' in repr(node._model)
+    assert 'the old one stays' in err and 'sigma=0.2' in repr(node._run.model)
     assert err.count('model refused') == 1, err  # said once, with the reason
     assert "unknown model term kind 'nope'" in err and '--plugin FILE or WIND_SHAPER_PLUGINS' in err
     assert cli(['set-model', str(tmp_path / 'missing.yaml')]) == 2

@@ -160,7 +160,7 @@ def test_estimate_is_the_core_estimate_of_the_aligned_pairs(harness, sim, setup)
     resp = harness.estimate_field(iteration=3)
     assert resp.success, resp.message
     force_t, force, pose_t, pose_xy = streams
-    # the pairs are core.align's pairs of exactly what was published: one per pose
+    # the pairs are estimation.align's pairs of exactly what was published: one per pose
     expected = align_sweep(force_t, force, pose_t, pose_xy[:, 0], pose_xy[:, 1], U)
     got = sweep_from_msg(resp.samples)
     assert len(got) == len(pose_t) == 400

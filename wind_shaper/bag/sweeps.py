@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from ..estimation.align import align_sweep
+from ..estimation import align_sweep
 from ..core.errors import SweepError
 from ..core.tunnel import Sweep
 from ..ros import names
@@ -199,7 +199,7 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
     if estimates is not None and (len(estimates) != len(sweeps)):
         raise BagWriteError(f'{len(estimates)} estimates given for {len(sweeps)} sweeps')
     if tunnel_from_mocap is None:
-        from ..estimation.frames import RigidTransform
+        from ..estimation import RigidTransform
         tunnel_from_mocap = RigidTransform.identity()
     mocap_from_tunnel = tunnel_from_mocap.inverse()
 

@@ -309,7 +309,7 @@ def _run_root(reported: str) -> Path | None:
 def write_run_report(run_folder: Path, out: Path, config_dir=None) -> Path:
     """The report folder (``wind_shaper.report.run_report``) of a coordinator run folder."""
     from ..app import Setup
-    from ..storage.runstore import RunStore
+    from ..storage import RunStore
     from ..report.run_report import write_report
     run_folder = Path(run_folder)
     store = RunStore.open(run_folder.parent, run_folder.name)

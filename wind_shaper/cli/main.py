@@ -23,7 +23,7 @@ def _common(p):
 
 def _cmd_shape(args) -> int:
     from ..app import Setup, format_iteration, hidden_effects, shape_on_sim
-    from ..model.plugins import load_plugins
+    from ..model import load_plugins
     from ..report.run_report import write_report
     if not args.sim:
         print('wind-shaper shape runs in-process on the simulated tunnel only: add --sim. '

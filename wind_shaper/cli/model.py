@@ -19,9 +19,9 @@ REFERENCE_FILE = 'reference.yaml'
 
 def _load_plugins(specs) -> list:
     """Import each ``--plugin`` (a Python file or a module name) and those listed in
-    WIND_SHAPER_PLUGINS (``core.plugins``); return the candidate families they offer (a
+    WIND_SHAPER_PLUGINS (``model.plugins``); return the candidate families they offer (a
     module-level ``FAMILIES`` list)."""
-    from ..model.plugins import load_plugins, plugin_families
+    from ..model import load_plugins, plugin_families
     return plugin_families(load_plugins(specs))
 
 
@@ -91,7 +91,7 @@ def _cmd_fit(args) -> int:
 
 
 def _commission(setup, args, out) -> int:
-    from ..model.modelfile import save_model
+    from ..model import save_model
     from ..workbench.reference import commission_on
     from ..workbench.report import Report
     if not args.sim:

@@ -12,8 +12,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..estimation.field import FieldEstimate, FieldEstimator
-from ..model.terms import Term
+from ..estimation import FieldEstimate, FieldEstimator
+from ..model import Term
 from ..core.tunnel import Sweep, Tunnel
 from .update import PastIteration, UpdateInput, UpdateRule
 
@@ -86,6 +86,17 @@ class ShapingLoop:
         self.k = 0
         self.history: list[IterationRecord] = []
 
+    @classmethod
+    def from_settings(cls, tunnel: Tunnel, model: Term, target: np.ndarray, shaping, *, u0=None,
+                      rule_overrides: dict | None = None,
+                      truth: Callable[[np.ndarray], np.ndarray] | None = None) -> 'ShapingLoop':
+        """The loop that ``shaping`` (a ``control.settings.ShapingConfig``) configures: its update
+        rule (``rule_overrides={'method': 'paper'}`` for Algorithm 1), estimator, samples per
+        sweep and u0 (unless given)."""
+        return cls(tunnel, model, target, shaping.make_rule(**(rule_overrides or {})),
+                   shaping.make_estimator(), u0=shaping.u0 if u0 is None else u0,
+                   n_samples=shaping.samples_per_sweep, truth=truth)
+
     def measure(self) -> tuple[np.ndarray, Sweep, FieldEstimate]:
         applied = self.tunnel.apply(self.U)
         sweep = self.tunnel.sweep(self.n_samples)
@@ -123,7 +134,7 @@ class ShapingLoop:
         """``iterations`` updates, then one final measurement at the last commands.
 
         stop_early: end after the update whose rule says more iterations will not help
-        (``info['stop']``, see ``core.solvers.StoppingRule``); the measurement at its commands
+        (``info['stop']``, see ``stopping.StoppingRule``); the measurement at its commands
         is still taken, so the last record is always a measurement of the final commands."""
         for i in range(iterations + 1):
             rec = self.iterate(update=i < iterations)

@@ -1,18 +1,20 @@
-"""Reading the YAML configuration into frozen dataclasses, with errors that name the key."""
+"""Reading the YAML configuration into frozen dataclasses, with errors that name the key.
+
+The shaping loop's settings (``ShapingConfig``, ``load_shaping``) live with the loop, in
+``wind_shaper.control.settings``; they build on ``read_yaml`` and ``take_section`` here.
+"""
 from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
 from typing import Mapping
 
 import yaml
 
 from .errors import ConfigError
-from ..estimation.field import FieldEstimator
 from .geometry import TunnelGeometry
-from ..control.update import CommandBounds, PaperUpdate
 
 
 def default_config_dir() -> Path:
@@ -42,7 +44,7 @@ def read_yaml(path) -> dict:
     return doc
 
 
-def _take(cls, section: Mapping, where: str):
+def take_section(cls, section: Mapping, where: str):
     """Build dataclass ``cls`` from ``section``, refusing unknown keys by name."""
     section = dict(section or {})
     names = {f.name for f in fields(cls)}
@@ -55,60 +57,25 @@ def _take(cls, section: Mapping, where: str):
         raise ConfigError(f'{where}: {exc}') from None
 
 
-@dataclass(frozen=True)
-class ShapingConfig:
-    """The loop's settings (see ``config/shaping.yaml`` for meanings and units)."""
-
-    iterations: int = 12
-    u0: float = 0.5
-    u_min: float = 0.0
-    u_max: float = 0.65
-    samples_per_sweep: int = 1000
-    update: Mapping = None
-    estimator: Mapping = None
-    model_file: str = 'model.yaml'
-
-    def __post_init__(self):
-        if not (isinstance(self.iterations, int) and self.iterations >= 0):
-            raise ConfigError(f'shaping.iterations must be a whole number >= 0, got {self.iterations!r}')
-        if not (isinstance(self.samples_per_sweep, int) and self.samples_per_sweep >= 10):
-            raise ConfigError(f'shaping.samples_per_sweep must be a whole number >= 10, got '
-                              f'{self.samples_per_sweep!r}')
-        self.bounds  # validates u_min/u_max
-        if not (self.u_min <= self.u0 <= self.u_max):
-            raise ConfigError(f'shaping.u0 = {self.u0} lies outside [u_min, u_max] = '
-                              f'[{self.u_min}, {self.u_max}]')
-
-    @property
-    def bounds(self) -> CommandBounds:
-        return CommandBounds(float(self.u_min), float(self.u_max))
-
-    def make_rule(self, **overrides):
-        cfg = dict(self.update or {})
-        cfg.update(overrides)
-        method = cfg.pop('method', 'paper')
-        # One section holds both methods' settings; each method drops the other's keys and
-        # still refuses keys that neither knows.
-        from ..control.solvers import AdaptiveUpdate
-        paper_keys = {f.name for f in fields(PaperUpdate)}
-        adaptive_keys = {f.name for f in fields(AdaptiveUpdate)}
-        if method == 'paper':
-            own = {k: v for k, v in cfg.items() if k in paper_keys or k not in adaptive_keys}
-            return _take(PaperUpdate, {**own, 'bounds': self.bounds}, 'shaping.update')
-        if method == 'adaptive':
-            own = {k: v for k, v in cfg.items() if k in adaptive_keys or k not in paper_keys}
-            if 'gain' in overrides:  # an explicit step gain (CLI --gain): the fraction of the step
-                own['step_fraction'] = overrides['gain']
-            return _take(AdaptiveUpdate, {**own, 'bounds': self.bounds}, 'shaping.update')
-        raise ConfigError(f'shaping.update.method {method!r} is unknown; use adaptive or paper')
-
-    def make_estimator(self) -> FieldEstimator:
-        return _take(FieldEstimator, self.estimator, 'shaping.estimator')
-
-
-def load_shaping(path) -> ShapingConfig:
-    return _take(ShapingConfig, read_yaml(path).get('shaping', {}), f'{path}: shaping')
-
-
 def load_geometry(path) -> TunnelGeometry:
     return TunnelGeometry.from_config(read_yaml(path).get('tunnel', {}))
+
+
+def parse_spec(text: str) -> tuple[str, dict]:
+    """``name`` or ``name:key=value,key=value`` (values: numbers, lists as a/b/c, or words), the
+    form of ``--hidden`` effects and workbench additions; ConfigError on an item without ``=``."""
+    name, _, rest = text.partition(':')
+    params = {}
+    for item in filter(None, rest.split(',')):
+        key, eq, value = item.partition('=')
+        if not eq:
+            raise ConfigError(f'{text!r}: write parameters as key=value (e.g. fan_gain[HM2]:gain=0.8)')
+        parts = value.split('/')
+        conv = []
+        for p in parts:
+            try:
+                conv.append(float(p))
+            except ValueError:
+                conv.append(p)
+        params[key.strip()] = conv[0] if len(conv) == 1 else conv
+    return name.strip(), params

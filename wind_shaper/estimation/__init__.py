@@ -1,0 +1,22 @@
+"""Field estimation: from force and pose streams to the force field at the key points.
+
+``align``: force (about 1 kHz) and pose (about 100 Hz) streams -> time-aligned sweep pairs.
+``frames``: rigid transforms, quaternions and the mocap relay's plate-centre gate.
+``field``: GET_CLOSEST subsampling and the Gaussian-process field (mean and std at any point).
+Positions [m, tunnel frame], forces [N], times [s].
+"""
+from .align import MIN_OVERLAP, SampleBuffer, align_sweep, pose_period
+from .field import (FieldEstimate, FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
+                    Subsample, closest_samples, fit_hyperparameters, get_closest)
+from .frames import (PlateRelay, RelayResult, RelayStats, RigidTransform, Verdict, quat_conjugate,
+                     quat_from_yaw, quat_multiply, quat_normalize, quat_rotate, quat_to_matrix,
+                     quat_to_yaw)
+
+__all__ = [
+    'align_sweep', 'pose_period', 'SampleBuffer', 'MIN_OVERLAP',
+    'FieldEstimate', 'FieldEstimator', 'GaussianProcessField', 'LocalGaussianProcessField',
+    'Subsample', 'closest_samples', 'get_closest', 'fit_hyperparameters',
+    'RigidTransform', 'PlateRelay', 'RelayResult', 'RelayStats', 'Verdict', 'quat_normalize',
+    'quat_multiply', 'quat_conjugate', 'quat_to_matrix', 'quat_rotate', 'quat_to_yaw',
+    'quat_from_yaw',
+]

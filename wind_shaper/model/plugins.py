@@ -7,9 +7,9 @@ program that reads such a file must import the plugin first; it finds it in two 
 * ``--plugin FILE.py`` (or a module name) on the command line (``wind-shaper shape``,
   ``wind-shaper model ...``);
 * the environment variable ``WIND_SHAPER_PLUGINS``: .py files (or module names) separated by
-  ``os.pathsep`` (``:`` on Linux). ``core.model.term_from_dict`` imports them when a model file
-  names a kind it does not know, so every process honours it, including the nodes started by
-  ``wind-shaper up`` (they inherit its environment).
+  ``os.pathsep`` (``:`` on Linux). ``wind_shaper.model.terms.term_from_dict`` imports them when
+  a model file names a kind it does not know, so every process honours it, including the nodes
+  started by ``wind-shaper up`` (they inherit its environment).
 
 Each plugin is imported once per process, whichever way it was named.
 """

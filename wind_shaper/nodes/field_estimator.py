@@ -34,9 +34,9 @@ from wind_shaper_msgs.msg import FieldEstimate
 from wind_shaper_msgs.srv import EstimateField
 
 from ..app import Setup
-from ..estimation.align import SampleBuffer, align_sweep
+from ..estimation import SampleBuffer, align_sweep
 from ..core.errors import WindShaperError
-from ..storage.journal import SweepJournal
+from ..storage import SweepJournal
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_to_msg, seconds_to_stamp, stamp_to_seconds, sweep_to_msg

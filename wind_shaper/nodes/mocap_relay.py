@@ -20,7 +20,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..estimation.frames import PlateRelay, RelayStats, RigidTransform, Verdict
+from ..estimation import PlateRelay, RelayStats, RigidTransform, Verdict
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import stamp_to_seconds

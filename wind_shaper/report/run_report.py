@@ -18,7 +18,7 @@ import matplotlib.tri as mtri  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..core.geometry import TunnelGeometry  # noqa: E402
-from ..control.loop import IterationRecord  # noqa: E402
+from ..control import IterationRecord  # noqa: E402
 
 
 def draw_fans(ax, geometry: TunnelGeometry, labels: bool = True):

@@ -5,7 +5,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from wind_shaper_msgs.msg import FanCommand, FieldEstimate, SweepSamples
 
-from ..estimation.field import FieldEstimate as CoreEstimate
+from ..estimation import FieldEstimate as CoreEstimate
 from ..core.tunnel import Sweep
 from . import names
 

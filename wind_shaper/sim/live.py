@@ -39,7 +39,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..estimation.frames import RigidTransform, quat_to_matrix
+from ..estimation import RigidTransform, quat_to_matrix
 from .errors import CommandError
 from .plant import SimulatedTunnel
 
@@ -214,7 +214,7 @@ class MocapFrame:
     body's origin to the plate centre, in the body frame. ``body_pose(p)`` is the body's pose in
     the mocap frame for a plate centred at p (3,) [m, tunnel frame]:
     inverse(T_tunnel_mocap) * plate * inverse(offset), so that the relay's
-    ``T_tunnel_mocap * body * offset`` (``core.frames.PlateRelay``) gives the plate back exactly.
+    ``T_tunnel_mocap * body * offset`` (``estimation.frames.PlateRelay``) gives the plate back exactly.
     """
 
     def __init__(self, tunnel_from_mocap: Sequence[float], plate_offset: Sequence[float]):

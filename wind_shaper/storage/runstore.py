@@ -32,8 +32,8 @@ import numpy as np
 import yaml
 
 from ..core.errors import RunFolderError
-from ..estimation.field import FieldEstimate
-from ..control.loop import IterationRecord
+from ..estimation import FieldEstimate
+from ..control import IterationRecord
 from ..core.tunnel import Sweep
 
 FORMAT_VERSION = 1
@@ -316,7 +316,7 @@ class RunStore:
             raise RunFolderError(f'{path} is not readable ({exc})') from None
 
     def load_history(self) -> list[IterationRecord]:
-        """Every completed iteration as a ``core.loop.IterationRecord`` (what
+        """Every completed iteration as a ``control.IterationRecord`` (what
         ``wind_shaper.report.run_report.write_report`` takes), oldest first."""
         kp = np.asarray(self.info.key_points, float)
         history = []

@@ -5,7 +5,7 @@ effect it misses, add it, and watch the error fall.
   split by sweep;
 * fitting with uncertainties (``fit_model``), scores and the held-out model error (``HeldOut``);
 * where the model fails (``analyse_residuals``);
-* the candidate-effect library (``Library``; terms in ``wind_shaper.model.effects``) and the
+* the candidate-effect library (``Library``; terms in ``wind_shaper.model``) and the
   diagnosis (``Diagnosis``: screening, refits, forward selection, a guard against spurious
   findings, findings in plain words);
 * the commissioned reference model (``commission``) the diagnosis measures changes against;

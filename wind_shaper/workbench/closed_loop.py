@@ -1,6 +1,6 @@
 """Closed loop on the simulator: does the improved model shape the field better?
 
-The shaping loop (Algorithm 1, ``wind_shaper.app.shape_on_sim``) uses the model only through
+The shaping loop (``wind_shaper.control.ShapingLoop``, as ``wind-shaper shape`` runs it) uses the model only through
 its Jacobian dPhi/dU, the search direction. ``compare_closed_loop`` runs the same loop with each
 model as the prior, on the same simulated tunnel (same hidden effects, same seeds, so the same
 turbulence), and records the true-field RMSE to the target at every iteration [N].
@@ -12,7 +12,8 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..model.terms import Term
+from ..control import ShapingLoop
+from ..model import Term
 
 __all__ = ['LoopComparison', 'compare_closed_loop']
 
@@ -44,14 +45,18 @@ def compare_closed_loop(setup, models: Mapping[str, Term], make_sim: Callable[[i
     """Run ``iterations`` updates of the shaping loop with each model on ``make_sim(seed)`` for
     every seed; ``setup`` is a ``wind_shaper.app.Setup`` (key points, update rule, estimator);
     ``rule_overrides`` go to ``setup.shaping.make_rule`` (e.g. another update method)."""
-    from ..app import shape_on_sim
+    kp = setup.geometry.key_points
     errors, pwm, described = {}, {}, ''
     for label, model in models.items():
+        tgt = setup.make_target(target, model=model)
+        described = tgt.describe()
         e_runs, p_runs = [], []
         for seed in seeds:
-            records, tgt = shape_on_sim(setup, target, iterations=iterations, seed=seed, model=model,
-                                        sim=make_sim(seed), u0=u0, rule_overrides=rule_overrides)
-            described = tgt.describe()
+            sim = make_sim(seed)
+            loop = ShapingLoop.from_settings(sim, model, tgt.values(kp), setup.shaping, u0=u0,
+                                             rule_overrides=rule_overrides,
+                                             truth=lambda U, sim=sim: sim.true_field(U, kp))
+            records = loop.run(iterations)
             e_runs.append([np.sqrt(r.true_error) for r in records])
             p_runs.append([r.pwm for r in records])
         errors[label] = np.array(e_runs)

@@ -13,10 +13,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..model.effects import Wrapper, term_label, walk
+from ..core.config import parse_spec
 from ..core.geometry import TunnelGeometry
-from ..model.terms import TERMS, Term
-from ..model.modelfile import save_model
+from ..model import TERMS, Term, Wrapper, save_model, term_label, walk
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
 from .errors import CandidateError
@@ -225,25 +224,6 @@ def _short_params(params: dict) -> str:
 
 
 # -- add ------------------------------------------------------------------------------------------
-
-def parse_spec(text: str) -> tuple[str, dict]:
-    """``name`` or ``name:key=value,key=value`` (values: numbers, lists as a/b/c, or words)."""
-    name, _, rest = text.partition(':')
-    params = {}
-    for item in filter(None, rest.split(',')):
-        key, eq, value = item.partition('=')
-        if not eq:
-            raise CandidateError(f'{text!r}: write parameters as key=value (e.g. fan_gain[HM2]:gain=0.8)')
-        parts = value.split('/')
-        conv = []
-        for p in parts:
-            try:
-                conv.append(float(p))
-            except ValueError:
-                conv.append(p)
-        params[key.strip()] = conv[0] if len(conv) == 1 else conv
-    return name.strip(), params
-
 
 def model_with_additions(model: Term, additions: Sequence, geometry: TunnelGeometry,
                          library: Library | None = None) -> Term:

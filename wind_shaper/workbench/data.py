@@ -267,13 +267,13 @@ def from_bag(bag_path, fan_names: Sequence[str] | None = None, **options) -> Swe
 
 def from_run_folder(folder) -> SweepSet:
     """The sweeps of every completed iteration of a coordinator run folder
-    (``<root>/<name>/iterations/kNNN/sweep.npz``, read through ``core.runstore.RunStore``)."""
+    (``<root>/<name>/iterations/kNNN/sweep.npz``, read through ``storage.runstore.RunStore``)."""
     folder = Path(folder)
     if not (folder / 'run.yaml').is_file():
         raise DataSourceError(f'{folder} is not a run folder (no run.yaml): give the folder the '
                               f'coordinator wrote for one run')
     try:
-        from ..storage.runstore import RunStore
+        from ..storage import RunStore
     except ImportError as exc:
         raise DataSourceError(f'reading run folders needs wind_shaper.storage.runstore ({exc})') from None
     store = RunStore.open(folder.parent, folder.name)

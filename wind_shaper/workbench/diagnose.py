@@ -43,9 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.effects import param_slices, term_label
+from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from ..model.terms import Term
 from .data import FitData, SweepSet
 from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
@@ -395,7 +394,7 @@ def drop_text(gain: float) -> str:
 
 
 def _nodes(model):
-    from ..model.effects import walk
+    from ..model import walk
     return walk(model)
 
 

@@ -18,8 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..model.effects import _part, _thrust, fan_landing, fan_width, is_fan_sum
-from ..model.terms import Term
+from ..model import Term, fan_landing, fan_part_batched, fan_thrust_batched, fan_width, is_fan_sum
 from .data import FitData
 from .errors import FitError
 
@@ -62,10 +61,10 @@ class Frozen(Term):
         hit = self._cache.get(key)
         if hit is not None:
             return hit[1]
-        return self._remember(key, (U, Z), _part(self.inner, U, Z, j, jacobian))
+        return self._remember(key, (U, Z), fan_part_batched(self.inner, U, Z, j, jacobian))
 
     def fan_thrust(self, U, jacobian):
-        return _thrust(self.inner, U, jacobian)
+        return fan_thrust_batched(self.inner, U, jacobian)
 
     def fan_width(self, j):
         return fan_width(self.inner, j)

@@ -23,11 +23,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..model.effects import (Background, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
-                            FanShift, FanWidth, JetInteraction, Swirl, WallLayer, Wrapper,
-                            _FanWrapper, _has_parts, find_term, walk)
+from ..model import (Background, CentralRing, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
+                     FanShift, FanWidth, FanWrapper, JetInteraction, Sum, Swirl, Term, WallLayer,
+                     Wrapper, find_term, has_fan_parts, walk)
 from ..core.geometry import TunnelGeometry
-from ..model.terms import CentralRing, Sum, Term
 from .errors import CandidateError
 
 __all__ = ['Candidate', 'Library', 'default_library', 'apply_candidate', 'candidate_for_hidden_effect',
@@ -77,11 +76,11 @@ class Candidate:
 def _peel(model: Term):
     """(core, rebuild): the fan-resolved core under any outer field terms and whole-tunnel
     wrappers, and a function that puts a new core back in their place."""
-    if isinstance(model, Sum) and not _has_parts(model.k2):
+    if isinstance(model, Sum) and not has_fan_parts(model.k2):
         core, rebuild = _peel(model.k1)
         k2 = model.k2
         return core, (lambda c: rebuild(c) + k2)
-    if isinstance(model, Wrapper) and not isinstance(model, _FanWrapper):
+    if isinstance(model, Wrapper) and not isinstance(model, FanWrapper):
         core, rebuild = _peel(model.inner)
         return core, (lambda c: model.clone(term=rebuild(c)))
     return model, (lambda c: c)

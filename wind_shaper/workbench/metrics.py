@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..model.terms import Term
+from ..model import Term
 from .data import FitData, SweepSet
 
 __all__ = ['Scores', 'scores', 'evaluate', 'HeldOut']

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model.calibration import CalibrationPlan, collect_calibration
-from ..model.effects import FanCurve, FanGain, FanShape, FanShift, FanWidth, refix, walk
+from ..model import CalibrationPlan, collect_calibration
+from ..model import (FanCurve, FanGain, FanShape, FanShift, FanWidth, Term, paper_prior, refix,
+                     term_from_dict, walk)
 from ..core.geometry import FanArray
-from ..model.terms import Term, paper_prior, term_from_dict
 from .data import FitData
 from .fitting import FitResult, fit_model
 
@@ -154,7 +154,7 @@ COMMISSIONING_PLAN = CalibrationPlan(samples_per_point=60, offsets=(0.04, 0.08, 
 
 
 def commission_on(tunnel, plan: CalibrationPlan = COMMISSIONING_PLAN, prior: Term | None = None) -> Reference:
-    """Run the calibration batch on ``tunnel`` (``core.calibration.collect_calibration``) and
+    """Run the calibration batch on ``tunnel`` (``model.calibration.collect_calibration``) and
     commission the reference model on it."""
     data = FitData.from_measurements(collect_calibration(tunnel, plan))
     return commission(data, tunnel.geometry.fans, prior)

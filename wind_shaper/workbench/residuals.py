@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..estimation.field import GaussianProcessField
+from ..estimation import GaussianProcessField
 from ..core.geometry import TunnelGeometry
-from ..model.terms import Term
+from ..model import Term
 from .data import FitData
 
 __all__ = ['ResidualAnalysis', 'analyse_residuals']

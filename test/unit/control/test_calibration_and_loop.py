@@ -5,11 +5,10 @@ import pytest
 from wind_shaper.model.calibration import CalibrationPlan, collect_calibration, fit_model
 from wind_shaper.core.errors import ModelFileError
 from wind_shaper.estimation.field import FieldEstimator
-from wind_shaper.control.loop import ShapingLoop, mean_squared_error
-from wind_shaper.model.terms import CentralRing, FanJets, paper_prior
+from wind_shaper.control import CommandBounds, PaperUpdate, ShapingLoop, mean_squared_error
+from wind_shaper.model import CentralRing, FanJets, paper_prior
 from wind_shaper.model.modelfile import load_model, save_model
 from wind_shaper.core.tunnel import Sweep, Tunnel
-from wind_shaper.control.update import CommandBounds, PaperUpdate
 
 TRUE_JETS = dict(thrust_higher=(0.05, 2.4, 11.0), thrust_lower=(0.02, 2.0, 9.0), sigma=0.16)
 TRUE_RING = dict(thrust=(0.0, 1.5, 8.0), offset=0.3, sigma=0.3)

@@ -1,10 +1,10 @@
-"""core.reach: targets the fans plainly cannot deliver are refused with the numbers."""
+"""control.reach: targets the fans plainly cannot deliver are refused with the numbers."""
 import numpy as np
 import pytest
 
 from wind_shaper.app import Setup
 from wind_shaper.core.errors import TargetError
-from wind_shaper.control.reach import check_reachable, model_reach
+from wind_shaper.control import check_reachable, model_reach
 
 
 @pytest.fixture(scope='module')

@@ -4,16 +4,14 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from wind_shaper.core.config import ShapingConfig
 from wind_shaper.core.errors import ConfigError
 from wind_shaper.estimation.field import (FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
                                     fit_hyperparameters)
 from wind_shaper.core.geometry import FanArray, TunnelGeometry, rect_key_points
-from wind_shaper.control.loop import ShapingLoop
-from wind_shaper.model.terms import CentralRing, FanJets, paper_prior
-from wind_shaper.control.secant import SecantCorrection, broyden_update
-from wind_shaper.control.solvers import AdaptiveUpdate, FanBasis, ShapeFit, StoppingRule
-from wind_shaper.control.update import CommandBounds, PaperUpdate, PastIteration, UpdateInput
+from wind_shaper.control import (AdaptiveUpdate, CommandBounds, FanBasis, PaperUpdate, PastIteration,
+                                 SecantCorrection, ShapeFit, ShapingConfig, ShapingLoop, StoppingRule,
+                                 UpdateInput, broyden_update)
+from wind_shaper.model import CentralRing, FanJets, paper_prior
 
 JETS = dict(thrust_higher=(0.1, 0.5, 15.0), thrust_lower=(0.1, 0.5, 12.0), sigma=0.16)
 RING = dict(thrust=(0.0, 0.5, 11.0), offset=0.6, sigma=0.25)
@@ -81,7 +79,7 @@ def test_on_a_linear_problem_one_step_is_the_bounded_least_squares_optimum(rng):
 
 
 def test_box_qp_matches_a_reference_bounded_least_squares_solver(rng):
-    from wind_shaper.control.solvers import box_qp
+    from wind_shaper.control import box_qp
     for _ in range(30):
         n = rng.integers(1, 12)
         A = rng.normal(size=(40, n)) * rng.uniform(0.01, 10, n)
@@ -252,7 +250,7 @@ def test_the_wall_path_keeps_bounds_and_improves_a_reachable_target(rng):
     basis = FanBasis.from_term(term, kp, sparse=True)
     rule = AdaptiveUpdate()
     U, history = np.where(fans.enabled, 0.3, 0.0), []
-    from wind_shaper.control import solvers
+    from wind_shaper.control import adaptive as solvers
     solvers._BASIS_CACHE.clear()
     solvers._BASIS_CACHE[(id(term), kp.shape, float(np.sum(kp)))] = (term, basis)  # force the sparse path
     errors = []

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wind_shaper.control import targets
+from wind_shaper.control import expression as targets
 from wind_shaper.core.errors import TargetError
-from wind_shaper.control.targets import (
+from wind_shaper.control import (
     TARGET_KINDS,
     CsvTarget,
     ExpressionTarget,

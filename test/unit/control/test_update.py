@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from wind_shaper.core.errors import ConfigError
-from wind_shaper.control.update import CommandBounds, PaperUpdate, UpdateInput
+from wind_shaper.control import CommandBounds, PaperUpdate, UpdateInput
 
 
 def test_schedule_is_the_papers():

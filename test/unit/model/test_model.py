@@ -4,8 +4,8 @@ import pytest
 
 from wind_shaper.core.errors import ConfigError, ModelFileError
 from wind_shaper.core.geometry import FanArray
-from wind_shaper.model.terms import (CentralRing, FanJets, Product, Sum, TERMS, Term,
-                                    finite_difference_jacobian, paper_prior, term_from_dict)
+from wind_shaper.model import (CentralRing, FanJets, Product, Sum, TERMS, Term,
+                               finite_difference_jacobian, paper_prior, term_from_dict)
 
 
 def _instances(fans):

@@ -12,11 +12,11 @@ import yaml
 
 from wind_shaper.model import plugins
 from wind_shaper.core.errors import ConfigError, ModelFileError
-from wind_shaper.model.terms import TERMS, term_from_dict
+from wind_shaper.model import TERMS, term_from_dict
 
 PLUGIN = '''
 import numpy as np
-from wind_shaper.model.terms import Hyper, Term, register_term
+from wind_shaper.model import Hyper, Term, register_term
 
 @register_term
 class Bump(Term):

@@ -2,10 +2,9 @@
 import numpy as np
 import pytest
 
-from wind_shaper.core.config import ShapingConfig
 from wind_shaper.estimation.field import FieldEstimator
-from wind_shaper.control.loop import ShapingLoop
-from wind_shaper.model.terms import CentralRing, FanJets
+from wind_shaper.control import ShapingConfig, ShapingLoop
+from wind_shaper.model import CentralRing, FanJets
 from wind_shaper.core.tunnel import Tunnel
 from wind_shaper.sim import NoiseModel, SimulatedTunnel
 from wind_shaper.sim.static_grid import StaticSensorGrid

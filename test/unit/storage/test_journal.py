@@ -1,4 +1,4 @@
-"""core.journal: every sample on disk as it arrives; a killed process loses none of them."""
+"""storage.journal: every sample on disk as it arrives; a killed process loses none of them."""
 import os
 import signal
 import subprocess

@@ -5,9 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from wind_shaper.model.effects import FanGain
+from wind_shaper.model import CentralRing, FanGain, FanJets
 from wind_shaper.core.geometry import TunnelGeometry
-from wind_shaper.model.terms import CentralRing, FanJets
 from wind_shaper.core.tunnel import Sweep
 from wind_shaper.sim import Imperfections, NoiseModel, SimulatedTunnel
 from wind_shaper.workbench import (DataSourceError, Frozen, HeldOut, SweepSet, analyse_residuals,
@@ -98,7 +97,7 @@ def test_frozen_model_is_cached_and_has_no_parameters(rig, truth_model):
 
 def test_heldout_model_error_removes_the_turbulence(rig):
     """On the simulated tunnel the noise-corrected error matches the error against the true field."""
-    from wind_shaper.model.terms import paper_prior
+    from wind_shaper.model import paper_prior
     sim = SimulatedTunnel(rig, seed=2, imperfections=Imperfections.none(7), noise=NoiseModel())
     train, test = simulated_sweeps(sim, 7, seed=2).split(test=[2, 4, 6])
     model = fit_model(paper_prior(rig.fans), train.fit_data(0.04), max_nfev=100).model
@@ -172,7 +171,7 @@ def test_sweeps_from_a_run_folder_and_a_shape_report(rig, tmp_path, wb_setup):
     got = from_report(tmp_path / 'shape')
     assert len(got) == 3 and got.fan_names == wb_setup.geometry.fans.names
     np.testing.assert_allclose(got.sweeps[1].forces, records[1].sweep.forces)
-    pytest.importorskip('wind_shaper.storage.runstore', reason='the run folder needs core.runstore')
+    pytest.importorskip('wind_shaper.storage.runstore', reason='the run folder needs storage.runstore')
     from wind_shaper.storage.runstore import IterationData, RunInfo, RunStore
     info = RunInfo('uniform', wb_setup.geometry.fans.names, wb_setup.geometry.key_points, {})
     store = RunStore.open(tmp_path / 'runs', 'r1', info, initial_pwm=records[0].pwm)

@@ -4,11 +4,11 @@ fan parts adding up), then each hypothesis's own law."""
 import numpy as np
 import pytest
 
-from wind_shaper.model import effects as E
+from wind_shaper import model as E
 from wind_shaper.core.errors import ConfigError
 from wind_shaper.core.geometry import TunnelGeometry
-from wind_shaper.model.terms import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
-                                    term_from_dict)
+from wind_shaper.model import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
+                               term_from_dict)
 
 
 @pytest.fixture(scope='module')
@@ -187,6 +187,6 @@ def test_a_model_file_naming_library_kinds_loads_without_importing_them(rig, tmp
     code = ('import sys; from wind_shaper.core.geometry import FanArray; '
             'from wind_shaper.model.modelfile import load_model; '
             f'm = load_model({str(path)!r}, FanArray.paper_rig()); '
-            'assert "wind_shaper.model.effects" in sys.modules; print(type(m).__name__)')
+            'assert "wind_shaper.model.fan_effects" in sys.modules; print(type(m).__name__)')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == 'FanGain', out.stderr

@@ -1,0 +1,158 @@
+"""coordination.iteration: the coordinator's run and state machine, driven by plain asyncio ports
+on the simulated tunnel (no rclpy)."""
+import asyncio
+import math
+
+import numpy as np
+import pytest
+
+from wind_shaper.app import Setup
+from wind_shaper.coordination import (CANCELLED, COMMANDING, ESTIMATING, FAILED, SWEEPING,
+                                      UPDATING, FanWatch, FieldAnswer, IterationStopped,
+                                      ShapingRun, run_iteration)
+from wind_shaper.core.errors import WindShaperError
+
+
+class SimPorts:
+    """The rig's ports on the in-process simulator: commands go to the plant, a sweep records
+    1000 samples, the estimate is the core FieldEstimator's. ``refuse`` sweeps are refused first
+    (as an estimator does on coverage gaps); ``cancel_after`` raises at that boundary."""
+
+    def __init__(self, setup, seed=0, refuse=0, cancel_after=None):
+        self.sim = setup.make_sim(seed=seed)
+        self.estimator = setup.shaping.make_estimator()
+        self.key_points = setup.geometry.key_points
+        self.states, self.warnings, self.commanded = [], [], []
+        self.refuse, self.cancel_after, self.boundaries = refuse, cancel_after, 0
+        self.samples = []
+
+    def set_state(self, state, message):
+        self.states.append(state)
+
+    def warn(self, message):
+        self.warnings.append(message)
+
+    def check_boundary(self):
+        self.boundaries += 1
+        if self.cancel_after is not None and self.boundaries > self.cancel_after:
+            raise IterationStopped(CANCELLED, 'cancelled by the test')
+
+    async def command_fans(self, U):
+        self.commanded.append(np.array(U))
+        self.sim.apply(U)
+        await asyncio.sleep(0)
+
+    async def begin_sweep(self):
+        self.samples = []
+
+    async def sweep(self, k, attempt):
+        self.set_state(SWEEPING, f'sweep {attempt}')
+        self.samples.append(self.sim.sweep(1000))
+        await asyncio.sleep(0)
+
+    async def estimate(self, k, U):
+        if self.refuse:
+            self.refuse -= 1
+            return FieldAnswer(False, 'a gap of 9 cm')
+        s = self.samples
+        from wind_shaper.core.tunnel import Sweep
+        sweep = Sweep(np.concatenate([x.positions for x in s]), np.concatenate([x.forces for x in s]),
+                      np.concatenate([x.times for x in s]), U)
+        est = self.estimator.estimate(sweep, self.key_points)
+        return FieldAnswer(True, '', self.key_points, est.mean, est.std, sweep, est.n_used, 0.01)
+
+
+@pytest.fixture(scope='module')
+def setup():
+    return Setup.load()
+
+
+def open_run(setup, tmp_path, target='parabolic', name='r'):
+    return ShapingRun.open(setup, tmp_path, name, target, {'test': True})
+
+
+def test_an_iteration_goes_through_its_states_writes_the_run_and_advances(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    assert run.k == 0 and run.command is None and math.isnan(run.last_rmse)
+    ports = SimPorts(setup)
+    _, rule = run.prepare()
+    data = asyncio.run(run_iteration(run, ports, rule, max_sweeps=3))
+    assert ports.states == [COMMANDING, SWEEPING, ESTIMATING, UPDATING]
+    assert np.allclose(ports.commanded[0], 0.5)
+    assert run.k == 1 and np.allclose(run.U, data.pwm_after) and np.allclose(run.command, run.U)
+    assert run.last_rmse == pytest.approx(data.rmse)
+    lo, hi = setup.shaping.u_min, setup.shaping.u_max
+    assert np.all((data.pwm_after >= lo - 1e-12) & (data.pwm_after <= hi + 1e-12))
+    assert data.rmse_predicted_after < data.rmse  # the step is predicted to help
+    # resuming the folder gives the same run state and the history the rule learns from
+    again = open_run(setup, tmp_path)
+    assert again.k == 1 and np.allclose(again.U, run.U) and len(again.history) == 1
+    assert again.last_rmse == pytest.approx(data.rmse)
+
+
+def test_a_refused_sweep_is_swept_again_and_pooled(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    ports = SimPorts(setup, refuse=1)
+    data = asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=3))
+    assert ports.states.count(SWEEPING) == 2 and len(ports.warnings) == 1
+    assert 'a gap of 9 cm' in ports.warnings[0] and '2 of 3' in ports.warnings[0]
+    assert len(data.sweep) == 2000 and run.k == 1
+
+
+def test_too_many_refusals_fail_and_nothing_advances(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    ports = SimPorts(setup, refuse=5)
+    with pytest.raises(IterationStopped) as stop:
+        asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=2))
+    assert stop.value.state == FAILED and 'after 2 sweep(s)' in str(stop.value)
+    assert run.k == 0 and np.allclose(run.U, 0.5)
+    assert open_run(setup, tmp_path).k == 0  # nothing written
+
+
+def test_a_cancel_at_a_boundary_leaves_the_run_where_it_was(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    ports = SimPorts(setup, cancel_after=1)
+    with pytest.raises(IterationStopped) as stop:
+        asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=3))
+    assert stop.value.state == CANCELLED
+    assert UPDATING not in ports.states and run.k == 0
+
+
+def test_a_bad_request_is_refused_before_anything_changes(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    with pytest.raises(WindShaperError):
+        run.prepare('expr:__import__("os")')
+    with pytest.raises(WindShaperError, match='uniform'):
+        run.prepare('uniform:500')  # far beyond what the fans deliver
+    assert run.target_spec == 'parabolic'
+    target, _ = run.prepare('uniform:2.5')
+    assert run.set_target('uniform:2.5', target) and run.target_spec == 'uniform:2.5'
+    assert open_run(setup, tmp_path).target_spec == 'uniform:2.5'  # kept in the run folder
+
+
+def test_a_resumed_run_keeps_its_own_target_and_says_so(setup, tmp_path):
+    open_run(setup, tmp_path, target='parabolic')
+    run = open_run(setup, tmp_path, target='uniform')
+    assert run.target_spec == 'parabolic'
+    assert any(level == 'warning' and 'new runs only' in text for level, text in run.notes)
+
+
+def test_set_model_refuses_a_broken_model_and_keeps_the_old(setup, tmp_path):
+    run = open_run(setup, tmp_path)
+    old = run.model
+    with pytest.raises(WindShaperError):
+        run.set_model('model: {kind: no_such_term}\n', 'broken.yaml')
+    assert run.model is old and not run.store.model_path.exists()
+    text = setup.model_path.read_text()
+    assert repr(run.set_model(text, 'model.yaml')) == repr(old)
+    assert run.store.model_path.read_text() == text
+
+
+def test_the_fan_watch_names_the_fan_that_left_its_command():
+    watch = FanWatch(0.0, [0.5, 0.5, 0.5], tolerance=0.01)
+    watch.saw(0.5, np.array([0.5, 0.5, 0.5]))
+    assert watch.problem(1.0, 2.0, ['A', 'B', 'C']) == ''
+    watch.saw(1.5, np.array([0.5, 0.2, 0.5]))
+    assert 'B at 0.200 instead of 0.500' in watch.problem(2.0, 2.0, ['A', 'B', 'C'])
+    quiet = FanWatch(0.0, [0.5], tolerance=0.01)
+    assert 'did not report' in quiet.problem(3.0, 2.0, ['A'])

@@ -1,0 +1,358 @@
+"""The improved update rule (``AdaptiveUpdate``).
+
+Units: commands U are fractions 0..1 of full PWM, one per fan; forces [N] at the key points
+[m, tunnel frame]; errors are mean squared differences over the key points [N^2].
+
+What the paper's Algorithm 1 does, and what ``AdaptiveUpdate`` does instead:
+
+* **Bounded step, not clipping.** The step solves a least-squares problem with the PWM limits
+  (and a trust region) as box constraints (``box_qp``, a projected-Newton QP; L-BFGS-B for
+  large walls), so a fan that hits its limit leaves the others to make up for it instead of
+  being cut off after the fact.
+* **The prior, corrected by the data.** The field predicted for new commands U is anchored at
+  the measured field of the best iteration so far, F_b, and moves as the prior says:
+
+      F(U) ~ F_b + M(U) - M(U_b) + D (U - U_b)
+
+  M is the prior after a per-fan correction fitted to every field map of the run (each fan's
+  gain, the landing point of its jet and its width, as a linear correction of the prior's
+  footprint: ``ShapeFit``); D is a multi-secant correction (``SecantCorrection``) from the
+  field changes M did not predict. M keeps the prior's nonlinear PWM-to-force curve, so large
+  first steps (a fan from 50 % to 0 %) land where the prior says, not where its tangent says.
+* **Step size from the data.** A trust region (infinity norm, in PWM) grows when the measured
+  error fell as predicted and shrinks when it did not; a step that made the measured error
+  clearly worse is not built upon (the next step starts again from the best iteration).
+* **Uncertainty.** Key points where the GP is unsure weigh less (optional, ``weighting``).
+* **Stopping.** ``StoppingRule`` says when the predicted improvement of the next step is below
+  what the noise of the field estimate lets a sweep resolve.
+
+The rule keeps no state between calls: everything it learns is recomputed from
+``UpdateInput.history`` (what ``ShapingLoop`` passes), so a node that builds a fresh rule per
+iteration loses nothing. Without a history it still takes a bounded, prior-model step; without
+``model``/``key_points``/``target`` it falls back to the Jacobian it is given (linear prior).
+
+Its parts live beside it: ``basis`` (``FanBasis``, the prior fan by fan), ``shape_fit``
+(``ShapeFit``), ``secant`` (``SecantCorrection``), ``qp`` (``box_qp`` and the bounded steps) and
+``stopping`` (``StoppingRule``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..core.errors import ConfigError
+from .basis import FanBasis
+from .qp import _bounded_lsq, _thrust_space_qp, _thrust_space_step
+from .secant import SecantCorrection
+from .shape_fit import BASES, ShapeFit, _fit_gains_sparse
+from .stopping import StoppingRule
+from .update import CommandBounds, UpdateInput, UpdateStep
+
+#: The prior's factorisation (``FanBasis``) for the current model and key points, one entry at a
+#: time (``AdaptiveUpdate._basis``).
+_BASIS_CACHE: dict[Any, Any] = {}
+
+
+@dataclass(frozen=True)
+class AdaptiveUpdate:
+    """Trust-region steps on a data-corrected prior (see the module docstring).
+
+    bounds: command limits; step_fraction: fraction of the computed step taken (1 = all of it);
+    radius: first trust radius [PWM fraction, largest change of any fan]; radius_min,
+    radius_max: its limits; correction: 'shape' (per-fan gain, landing point and width fitted
+    to every map), 'gain' (per-fan gain only) or 'none' (the prior as it is); fit_from: maps
+    needed before the correction is fitted; swirl: also fit the field's turn with the CW/CCW
+    thrust balance (``ShapeFit``; small rigs only); secant: correct the Jacobian with the measured
+    changes the corrected prior did not predict; secant_memory: pairs used; secant_min_step:
+    smallest step [fraction] a pair may come from; secant_scale: prior size of the secant
+    correction relative to the prior Jacobian's RMS column (sets its ridge); noise_std [N]:
+    noise floor of a field estimate at a key point; memory: maps (besides the best one) the
+    fit and the secant use, the most recent first; weighting: weigh key points by
+    1 / (1 + (std / noise_std)^2); damping: Marquardt damping of every step (a fan's move
+    costs damping x its column's squared norm; keeps nearly collinear fans of a dense wall
+    from trading large opposite moves); idle_below [fraction]: a command below this is sent as
+    u_min (an ESC does not turn a propeller that slowly; with u_min = 0 the feasible set is
+    {0} and [idle_below, u_max]); inner_iterations: Gauss-Newton passes on the nonlinear model
+    per step; stop_factor, stop_patience: the ``StoppingRule``.
+    """
+
+    bounds: CommandBounds = CommandBounds()
+    step_fraction: float = 1.0
+    radius: float = 0.35
+    radius_min: float = 0.01
+    radius_max: float = 0.65
+    correction: str = 'shape'
+    fit_from: int = 2
+    secant: bool = True
+    secant_memory: int = 6
+    secant_min_step: float = 0.02
+    secant_scale: float = 0.3
+    noise_std: float = 0.1
+    weighting: bool = False
+    damping: float = 0.05
+    idle_below: float = 0.02
+    locality: float | None = None
+    memory: int = 8
+    swirl: bool = True
+    inner_iterations: int = 5
+    stop_factor: float = 0.5
+    stop_patience: int = 1
+
+    #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
+    needs_jacobian = False
+    method = 'adaptive'
+
+    def __post_init__(self):
+        if not 0 < self.step_fraction <= 1:
+            raise ConfigError(f'adaptive update step_fraction must be in (0, 1], got {self.step_fraction}')
+        if not 0 < self.radius_min <= self.radius <= self.radius_max:
+            raise ConfigError(f'trust radii need 0 < radius_min <= radius <= radius_max; got '
+                              f'{self.radius_min}, {self.radius}, {self.radius_max}')
+        if self.correction not in ('shape', 'gain', 'none'):
+            raise ConfigError(f'correction must be shape, gain or none; got {self.correction!r}')
+        if not (self.noise_std > 0 and self.secant_scale > 0 and self.inner_iterations >= 1
+                and self.fit_from >= 1):
+            raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
+                              'fit_from >= 1')
+
+    @property
+    def stopping(self) -> StoppingRule:
+        return StoppingRule(factor=self.stop_factor, floor=0.5 * self.noise_std,
+                            patience=self.stop_patience)
+
+    # -- the prior ---------------------------------------------------------------------------
+    def _basis(self, inp: UpdateInput):
+        """The separable factorisation of the prior, cached per (model, key points)."""
+        if inp.model is None or inp.key_points is None or inp.target is None or self.correction == 'none':
+            return None
+        cache = _BASIS_CACHE
+        key = (id(inp.model), inp.key_points.shape, float(np.sum(inp.key_points)))
+        hit = cache.get(key)
+        if hit is not None and hit[0] is inp.model:
+            return hit[1]
+        try:
+            basis = FanBasis.from_term(inp.model, inp.key_points)
+        except ConfigError:
+            basis = None
+        cache.clear()  # one run at a time; a new model or key points replaces the old entry
+        cache[key] = (inp.model, basis)
+        return basis
+
+    def step(self, inp: UpdateInput) -> UpdateStep:
+        on = np.asarray(inp.enabled, dtype=bool)
+        U_k = self.bounds.project(inp.U, on)
+        delta = np.asarray(inp.delta, dtype=float)
+        N = len(delta)
+        target = None if inp.target is None else np.asarray(inp.target, dtype=float)
+        ref = target if target is not None else np.zeros(N)
+        # every map of the run: (U, F - F_des, std). Without the target the earlier maps cannot
+        # be related to this one (only F_des - F_k is known), so the history is not used.
+        history = inp.history if target is not None else ()
+        maps = [(np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
+                 None if p.std is None else np.asarray(p.std, float), dict(p.info)) for p in history]
+        maps.append((U_k, -delta, None if inp.std is None else np.asarray(inp.std, float), {}))
+        noise2 = [self.noise_std ** 2 + (0.0 if s is None else s ** 2) for _, _, s, _ in maps]
+        weights = [np.ones(N) if not self.weighting else 1.0 / (1.0 + (0.0 if s is None else s ** 2) / self.noise_std ** 2)
+                   for _, _, s, _ in maps]
+        errors = np.array([float(np.mean(r ** 2)) for _, r, _, _ in maps])
+        stop_rule = self.stopping
+        err_noise = stop_rule.noise(inp.std)
+
+        # -- the base: the best map so far (ties go to the latest) ----------------------------
+        b = int(len(maps) - 1 - np.argmin(errors[::-1]))
+        if errors[-1] <= errors[b] + 0.5 * err_noise:
+            b = len(maps) - 1
+        U_b, r_b = maps[b][0], maps[b][1]
+        if self.locality:
+            near = [np.exp(-(np.max(np.abs(U - U_b)) / self.locality) ** 2) for U, _, _, _ in maps]
+        else:
+            near = [1.0] * len(maps)
+        # the fit and the secant use the most recent `memory` maps and the base (old maps far
+        # from the operating point add little and cost time)
+        window = sorted(set(range(max(0, len(maps) - self.memory), len(maps))) | {b})
+
+        # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
+        basis = self._basis(inp)
+        fitted = len(maps) >= self.fit_from
+        if basis is not None and basis.sparse:
+            # A large wall: per-fan gains only, on the Gram matrix of the footprints (cached per
+            # run); no secant and no swirl term; the step is a bounded QP in thrust space.
+            gains = np.ones(basis.n_fans)
+            if fitted and self.correction != 'none':
+                gains = _fit_gains_sparse(basis, [(maps[i][0], maps[i][1] + ref,
+                                                   float(np.mean(near[i] * weights[i] / noise2[i])) * self.noise_std ** 2)
+                                                  for i in window],
+                                          on, self.noise_std, ShapeFit().gain_sd, ShapeFit().offset_sd)
+            Smat = (basis.shape @ sp.diags(gains)).tocsc()
+
+            def model(U):
+                return np.asarray(Smat @ basis.thrust(U)[0]).ravel(), None
+            mode = 'gain' if fitted else 'prior'
+        elif basis is not None:
+            fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
+                           swirl=self.swirl and not basis.sparse, noise_std=self.noise_std)
+            if fitted:
+                abs_maps = [(maps[i][0], maps[i][1] + ref, near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
+                            for i in window]
+                theta = fit.fit(basis, abs_maps, on)
+            else:
+                theta = fit.prior(basis.n_fans)[0]
+            Smat = fit.shape_matrix(basis, theta)
+            g_swirl = fit.swirl_gain(theta)
+
+            def model(U):
+                a, da = basis.thrust(U)
+                val = np.asarray(Smat @ a).ravel()
+                jac = Smat @ sp.diags(da) if sp.issparse(Smat) else Smat * da
+                if g_swirl:
+                    w, dw = fit.balance(basis, a, da)
+                    ra = basis.rot @ a
+                    val = val + g_swirl * w * ra
+                    jac = jac + g_swirl * (w * (basis.rot * da) + np.outer(ra, dw))
+                return val, jac
+            mode = 'shape' if fitted else 'prior'
+        elif inp.model is not None and inp.key_points is not None:
+            def model(U):
+                return inp.model.value_and_jacobian(U, inp.key_points)
+            mode = 'prior'
+        else:
+            if inp.jacobian is None:
+                raise ConfigError('the adaptive update needs the prior: pass model and key_points, '
+                                  'or the Jacobian at U')
+            J_k = np.asarray(inp.jacobian, dtype=float)
+
+            def model(U):
+                return J_k @ (np.asarray(U) - U_k), J_k
+            mode = 'linear'
+
+        M_vals = {i: model(maps[i][0])[0] for i in window}
+        M_b, J_b = model(U_b)
+
+        # -- trust radius from the last step's prediction ---------------------------------------
+        radius, rho, accepted = self.radius, None, True
+        if not history and inp.k > 0:
+            # Called without the run's history (e.g. by a node that keeps none): the rule cannot
+            # see whether its steps work, so the radius shrinks like the paper's schedule.
+            radius = max(self.radius_min, self.radius / (inp.k + 1))
+        if history:
+            last = dict(history[-1].info)
+            radius = float(last.get('radius', self.radius))
+            pred, base_err = last.get('predicted_error'), last.get('base_error')
+            moved = float(np.max(np.abs(U_k - np.asarray(history[-1].U)))) if 'base_k' not in last else \
+                float(np.max(np.abs(U_k - maps[int(last['base_k'])][0])))
+            if pred is not None and base_err is not None:
+                predicted = base_err - pred
+                actual = base_err - errors[-1]
+                accepted = actual > -err_noise
+                if predicted > err_noise:
+                    rho = actual / predicted
+                    if rho < 0.25:
+                        radius = max(self.radius_min, 0.5 * moved)
+                    elif rho > 0.75 and moved >= 0.9 * radius:
+                        radius = min(self.radius_max, 2.0 * radius)
+                elif actual < -2.0 * err_noise:
+                    radius = max(self.radius_min, 0.5 * moved)
+
+        # -- secant correction of what M did not predict --------------------------------------
+        secant = None
+        if self.secant and len(maps) > 1 and J_b is not None:
+            steps, misses = [], []
+            e_b = r_b - M_vals[b]
+            for i in window:
+                if i != b:
+                    steps.append(maps[i][0] - U_b)
+                    misses.append((maps[i][1] - M_vals[i]) - e_b)
+            order = np.argsort([np.max(np.abs(s)) for s in steps])  # largest steps kept last
+            steps = [steps[i] for i in order]
+            misses = [misses[i] for i in order]
+            cols = np.asarray(np.sqrt((J_b.power(2) if sp.issparse(J_b) else J_b ** 2).sum(axis=0))).ravel()
+            col_rms = float(np.sqrt(np.mean(cols[on] ** 2) / N)) if on.any() else 1.0
+            tau = self.secant_scale * max(col_rms, 1e-9)
+            ridge = 2.0 * float(np.mean(noise2[-1])) / tau ** 2
+            secant = SecantCorrection(ridge=ridge, min_step=self.secant_min_step,
+                                      memory=self.secant_memory).fit(steps, misses)
+            if secant.n_pairs_ == 0:
+                secant = None
+
+        # -- the bounded step ----------------------------------------------------------------
+        lo = np.where(on, np.maximum(self.bounds.u_min, U_b - radius), 0.0)
+        hi = np.where(on, np.minimum(self.bounds.u_max, U_b + radius), 0.0)
+        w_b = weights[b]
+
+        def predict(U):
+            v, J = model(U)
+            pred = r_b + (v - M_b)
+            if secant is not None:
+                pred = pred + secant.matvec(U - U_b)
+            return pred, J
+
+        def objective(pred):
+            return float(np.mean(w_b * pred ** 2))
+
+        idx = np.flatnonzero(on)
+        U_c = U_b.copy()
+        pred_c, J_c = predict(U_c)
+        f_c = objective(pred_c)
+        if J_b is None:  # large wall: the bounded QP in thrust space is the whole step
+            if idx.size:
+                U_c = _thrust_space_qp(basis, gains, r_b, U_b, lo, hi, idx, self.damping)
+                pred_c, _ = predict(U_c)
+        elif basis is not None and idx.size and basis.monotone:
+            # The corrected prior is linear in the per-fan thrusts a_j: solve the bounded
+            # problem there exactly (a fan idling at PWM 0, where da/dU = 0, can come back),
+            # then refine in PWM space, where the secant term lives.
+            U_t = _thrust_space_step(basis, Smat, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
+            pred_t, J_t = predict(U_t)
+            f_t = objective(pred_t)
+            if f_t < f_c:
+                U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
+                # the convex thrust-space problem decides which limits are active: fans it put on
+                # a limit stay there (at PWM 0 the model's slope is 0, so the refinement below
+                # could only wander off it on noise)
+                pinned = (U_t <= lo + 1e-12) | (U_t >= hi - 1e-12)
+                lo, hi = np.where(pinned, U_t, lo), np.where(pinned, U_t, hi)
+        for _ in range(self.inner_iterations if idx.size and J_b is not None else 0):
+            du = _bounded_lsq(J_c, secant, pred_c, np.sqrt(w_b), idx, lo[idx] - U_c[idx], hi[idx] - U_c[idx],
+                              self.damping)
+            t, improved = 1.0, False
+            while t > 1e-3:
+                U_t = U_c.copy()
+                U_t[idx] = np.clip(U_c[idx] + t * du, lo[idx], hi[idx])
+                pred_t, J_t = predict(U_t)
+                f_t = objective(pred_t)
+                if f_t < f_c:
+                    improved = True
+                    break
+                t *= 0.5
+            if not improved:
+                break
+            done = np.max(np.abs(U_t - U_c)) < 1e-5
+            U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
+            if done:
+                break
+        U_next = self.bounds.project(U_b + self.step_fraction * (U_c - U_b), on)
+        if self.idle_below > self.bounds.u_min:
+            # no ESC turns a propeller at a few percent PWM: such a command is sent as u_min
+            U_next = np.where(on & (U_next < self.idle_below), self.bounds.u_min, U_next)
+        if self.step_fraction < 1 or not np.array_equal(U_next, U_c):
+            pred_c, _ = predict(U_next)
+        predicted_error = float(np.mean(pred_c ** 2))
+        improvement = errors[b] - predicted_error
+        stop, reason = stop_rule(inp.k, improvement, inp.std, history)
+        if not stop and history and rho is not None and radius <= self.radius_min * (1 + 1e-9) and inp.k + 1 >= stop_rule.min_iterations:
+            stop, reason = True, (f'the trust radius has shrunk to its minimum {self.radius_min:g}: '
+                                  f'the predicted gains are not realised, the rest is model error')
+        info = {'method': self.method, 'mode': mode, 'base_k': int(b), 'base_error': float(errors[b]),
+                'predicted_error': predicted_error, 'predicted_improvement': float(improvement),
+                'estimate_noise': float(err_noise), 'radius': float(radius),
+                'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
+                'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
+                'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
+                'stop_reason': reason}
+        # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within
+        # the first trust region (without a history it is step_fraction / (k + 1), the paper's
+        # schedule); the radius itself [PWM fraction] is info['radius']
+        return UpdateStep(U_next, self.step_fraction * radius / self.radius, U_next - U_k, info)

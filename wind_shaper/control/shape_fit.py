@@ -1,0 +1,166 @@
+"""The per-fan correction of the prior, learned from the run's field maps.
+
+``ShapeFit`` fits each fan's gain, the landing point of its jet and its width (optionally one
+global swirl term) as a linear correction of a ``FanBasis``, by ridge regression over every map
+of the run: the corrected prior M(U) of the adaptive update (``adaptive``).
+``_fit_gains_sparse`` is the large-wall version: per-fan gains only, on the footprints' Gram
+matrix.
+
+Units: commands U are fractions 0..1 of full PWM, one per fan; forces [N] at the key points
+[m, tunnel frame].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+from .basis import FanBasis
+
+#: What ``ShapeFit`` can fit per fan: its gain, the landing point (x, y) of its jet, its width.
+BASES = ('gain', 'x', 'y', 'width')
+
+
+@dataclass(frozen=True)
+class ShapeFit:
+    """Per-fan correction of a separable prior, fitted to field maps by ridge regression:
+
+        M(U, z) = offset(z) + c0 + sum_j a_j(U_j) [gain_j g_j + x_j dx_j + y_j dy_j + width_j dw_j](z)
+
+    gain_j [-] (prior 1), x_j, y_j [m] (where fan j's jet lands, prior 0), width_j [-] (relative
+    widening, prior 0) and c0 [N] (a uniform offset, prior 0) have independent Gaussian priors
+    with the standard deviations below; the maps' noise is ``noise_std`` [N] per key point.
+    bases: which of ('gain', 'x', 'y', 'width') to fit.
+
+    swirl: also fit one global term, the whole field turning about the tunnel axis by
+    phi(U) = swirl_gain * sum_j s_j a_j(U_j) / sum_j a_j(U_j) [rad] (s_j = +1 for CCW fans, -1
+    for CW), the residual swirl the honeycomb leaves when CW and CCW thrusts are unbalanced
+    (the workbench's ``Swirl`` hypothesis, linearised in phi); prior 0 +- swirl_sd [rad].
+    """
+
+    bases: tuple = BASES
+    swirl: bool = False
+    gain_sd: float = 0.2
+    shift_sd: float = 0.02
+    width_sd: float = 0.15
+    offset_sd: float = 0.5
+    swirl_sd: float = 0.5
+    noise_std: float = 0.1
+
+    def prior(self, n: int):
+        mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
+                              + [[0.0]] * self.swirl)
+        sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
+        std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
+                             + [[self.swirl_sd]] * self.swirl)
+        return mean, std
+
+    @staticmethod
+    def balance(basis: 'FanBasis', a, da=None):
+        """w = sum s_j a_j / sum a_j [-] and, with da, dw/dU (n,)."""
+        total = float(np.sum(a))
+        if total <= 1e-9:
+            return 0.0, (None if da is None else np.zeros_like(a))
+        net = float(basis.spin @ a)
+        w = net / total
+        if da is None:
+            return w, None
+        return w, da * (basis.spin * total - net) / total ** 2
+
+    def swirl_gain(self, theta) -> float:
+        return float(theta[-1]) if self.swirl else 0.0
+
+    def matrices(self, basis: FanBasis):
+        table = {'gain': basis.shape, 'x': basis.dx, 'y': basis.dy, 'width': basis.dw}
+        return [table[b] for b in self.bases]
+
+    def fit(self, basis: FanBasis, maps, enabled) -> np.ndarray:
+        """theta = [c0, then one block of n_fans per basis] from maps [(U (n,), F (N,), w (N,))]."""
+        n = basis.n_fans
+        mats = self.matrices(basis)
+        mean, std = self.prior(n)
+        P = len(mean)
+        frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats) + [[False]] * self.swirl)
+        if basis.sparse:
+            blocks, rhs = [], []
+            for U, F, w in maps:
+                a, _ = basis.thrust(U)
+                sw = np.sqrt(w)
+                cols = [sp.csc_matrix(sw[:, None])] + [sp.diags(sw) @ (B @ sp.diags(a)) for B in mats]
+                if self.swirl:
+                    cols.append(sp.csc_matrix((sw * self.balance(basis, a)[0] * (basis.rot @ a))[:, None]))
+                blocks.append(sp.hstack(cols, format='csr'))
+                rhs.append(sw * (F - basis.offset))
+            X = sp.vstack(blocks, format='csr')
+            y = np.concatenate(rhs)
+            A = (X.T @ X).tocsc() + sp.diags((self.noise_std / std) ** 2)
+            b = X.T @ (y - X @ mean)
+            keep = np.flatnonzero(~frozen)
+            theta = mean.copy()
+            theta[keep] += spsolve(A[keep][:, keep].tocsc(), b[keep])
+            return theta
+        A = np.zeros((P, P))
+        b = np.zeros(P)
+        cache = basis.__dict__.setdefault('_normal_cache', {})
+        if len(cache) > 64:
+            cache.clear()
+        for U, F, w in maps:
+            key = (self.bases, self.swirl, U.tobytes(), F.tobytes(), w.tobytes())
+            hit = cache.get(key)
+            if hit is None:
+                a, _ = basis.thrust(U)
+                X = np.column_stack([np.ones(len(F))] + [B * a for B in mats]
+                                    + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl)
+                Xw = X * w[:, None]
+                hit = cache[key] = (X.T @ Xw, Xw.T @ (F - basis.offset - X @ mean))
+            A += hit[0]
+            b += hit[1]
+        A += np.diag((self.noise_std / std) ** 2)
+        keep = ~frozen
+        theta = mean.copy()
+        theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
+        return theta
+
+    def shape_matrix(self, basis: FanBasis, theta):
+        """sum_b B_b diag(theta_b): (N, n) footprints of the corrected prior per unit a_j."""
+        n = basis.n_fans
+        out = None
+        for i, B in enumerate(self.matrices(basis)):
+            t = theta[1 + i * n:1 + (i + 1) * n]
+            part = B @ sp.diags(t) if sp.issparse(B) else B * t
+            out = part if out is None else out + part
+        return out.tocsc() if sp.issparse(out) else out
+
+
+def _fit_gains_sparse(basis, maps, enabled, noise_std, gain_sd, offset_sd) -> np.ndarray:
+    """Per-fan gains (n,) of a sparse basis from maps [(U, F (N,), weight (scalar))]: ridge
+    regression F - offset ~ c0 + S diag(a(U)) g on the footprints' Gram matrix S^T S."""
+    n, N = basis.n_fans, len(basis.key_points)
+    G, s1 = basis.gram, basis.col_sums
+    A_g0, A_00 = np.zeros(n), 0.0
+    b_g, b_0 = np.zeros(n), 0.0
+    rows = np.repeat(np.arange(n), np.diff(G.indptr))
+    A = np.zeros(G.nnz)
+    for U, F, w in maps:
+        a, _ = basis.thrust(U)
+        y = F - basis.offset
+        A += w * G.data * a[rows] * a[G.indices]  # diag(a) G diag(a) on G's pattern
+        A_g0 += w * a * s1
+        A_00 += w * N
+        b_g += w * a * np.asarray(basis.shape.T @ y).ravel()
+        b_0 += w * float(np.sum(y))
+    A = sp.csr_matrix((A, G.indices, G.indptr), shape=G.shape)
+    keep = np.flatnonzero(np.asarray(enabled, bool))
+    M = np.zeros((len(keep) + 1, len(keep) + 1))
+    M[1:, 1:] = A[keep][:, keep].toarray()
+    M[0, 1:] = M[1:, 0] = A_g0[keep]
+    M[0, 0] = A_00
+    mean = np.concatenate([[0.0], np.ones(len(keep))])
+    rhs = np.concatenate([[b_0], b_g[keep]]) - M @ mean
+    M[np.diag_indices_from(M)] += (noise_std / np.concatenate([[offset_sd], np.full(len(keep), gain_sd)])) ** 2
+    sol = mean + np.linalg.solve(M, rhs)
+    gains = np.ones(n)
+    gains[keep] = np.clip(sol[1:], 0.2, 5.0)  # a gain outside this range is a fit gone wrong
+    return gains

@@ -1,0 +1,321 @@
+"""One shaping iteration over a rig, without ROS: the coordinator node's logic.
+
+``ShapingRun`` is the run a coordinator drives: its run folder (``storage.RunStore``), the prior,
+the target, the commands in force and the history the update rule learns from. It resumes a run
+folder, validates a request before anything changes, turns a field estimate into the next
+commands (the update rule, bounded, written to the run folder) and swaps the prior.
+
+``run_iteration`` is the iteration's state machine (docs/graph.md): ``commanding`` -> ``sweeping``
+-> ``estimating`` (sweeping again at the same commands while the estimator refuses the sweep, up
+to ``max_sweeps``) -> ``updating``. It awaits a ``RigPorts`` object for everything that touches
+the rig; the coordinator node implements the ports with topics and services, the unit tests with
+plain asyncio. Any port may raise ``IterationStopped`` (failed or cancelled): nothing advances.
+
+Commands U are fractions 0..1 of full PWM in the tunnel's fan order; forces [N]; key points
+[m, tunnel frame]; times [s].
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Protocol, Sequence
+
+import numpy as np
+
+from ..control import PastIteration, UpdateInput
+from ..core.config import read_yaml
+from ..core.errors import ConfigError, WindShaperError
+from ..core.tunnel import Sweep
+from ..estimation import FieldEstimate, closest_samples
+from ..model import load_model, model_from_text
+from ..storage import IterationData, RunInfo, RunStore
+
+# The iteration's states, as wind_shaper_msgs/IterationStatus names them (a node test checks
+# that the two agree).
+IDLE, COMMANDING, SWEEPING, ESTIMATING, UPDATING = 'idle', 'commanding', 'sweeping', 'estimating', 'updating'
+DONE, FAILED, CANCELLED = 'done', 'failed', 'cancelled'
+#: Share of an iteration's progress reached at the start of each state.
+PROGRESS = {COMMANDING: 0.0, SWEEPING: 0.1, ESTIMATING: 0.8, UPDATING: 0.9, DONE: 1.0}
+
+
+class IterationStopped(Exception):
+    """Ends an iteration early: ``state`` is FAILED or CANCELLED, the message says why."""
+
+    def __init__(self, state: str, message: str):
+        super().__init__(message)
+        self.state = state
+
+
+@dataclass(frozen=True)
+class FieldAnswer:
+    """What the field estimator returned for one iteration: ``success`` false with ``message``
+    when it refused the sweep (gaps, too few samples); else the estimate at ``key_points`` (N, 2)
+    [m] (``mean``, ``std`` [N]), the aligned ``sweep`` pairs, the samples the GP used and its
+    compute time [s]."""
+
+    success: bool
+    message: str = ''
+    key_points: np.ndarray | None = None
+    mean: np.ndarray | None = None
+    std: np.ndarray | None = None
+    sweep: Sweep | None = None
+    n_used: int = 0
+    compute_s: float = 0.0
+
+
+class RigPorts(Protocol):
+    """Everything an iteration needs from the rig; the coordinator node implements it."""
+
+    def set_state(self, state: str, message: str) -> None:
+        """Publish the iteration's state (and log the message)."""
+
+    def warn(self, message: str) -> None:
+        """Log a warning."""
+
+    def check_boundary(self) -> None:
+        """Between steps: raise IterationStopped on a cancel request or a passed deadline."""
+
+    async def command_fans(self, U: np.ndarray) -> None:
+        """Send U and return once the fans report it applied (and have settled)."""
+
+    async def begin_sweep(self) -> None:
+        """Tell the estimator to start collecting (it keeps collecting over re-sweeps)."""
+
+    async def sweep(self, k: int, attempt: int) -> None:
+        """Move the plate once (or give an operator the time); raise if the fans left U."""
+
+    async def estimate(self, k: int, U: np.ndarray) -> FieldAnswer:
+        """Ask the estimator for the field from everything collected since begin_sweep."""
+
+
+class FanWatch:
+    """The fans' read-back during one sweep: the longest pause between reports [s] and the first
+    report off the commands U [fraction] by more than ``tolerance``; times from any clock [s]."""
+
+    def __init__(self, start: float, U, tolerance: float):
+        self.U, self.tolerance = np.asarray(U, dtype=float), float(tolerance)
+        self.start = self.last = start
+        self.longest_pause = 0.0
+        self.off: tuple[float, np.ndarray] | None = None
+
+    def saw(self, now: float, applied: np.ndarray) -> None:
+        self.longest_pause = max(self.longest_pause, now - self.last)
+        self.last = now
+        if self.off is None and np.max(np.abs(applied - self.U)) > self.tolerance:
+            self.off = (now - self.start, np.array(applied, dtype=float))
+
+    def problem(self, now: float, timeout_s: float, fan_names: Sequence[str]) -> str:
+        """Why the sweep cannot be trusted, or ''."""
+        if self.off is not None:
+            t, applied = self.off
+            worst = int(np.argmax(np.abs(applied - self.U)))
+            return (f'{t:.1f} s into the sweep the fans reported {fan_names[worst]} at '
+                    f'{applied[worst]:.3f} instead of {self.U[worst]:.3f}')
+        pause = max(self.longest_pause, now - self.last)
+        if pause > timeout_s:
+            return (f'the fans did not report their outputs for {pause:.1f} s during the sweep '
+                    f'(readback_timeout_s {timeout_s:g})')
+        return ''
+
+
+def past_iteration(U, mean, std, info) -> PastIteration:
+    """An earlier iteration as update rules see it (rules that do not learn from the run ignore
+    the history)."""
+    return PastIteration(np.asarray(U, float), np.asarray(mean, float), np.asarray(std, float),
+                         dict(info))
+
+
+class ShapingRun:
+    """The run a coordinator drives, from one config folder's ``setup`` (``wind_shaper.app.Setup``
+    or anything with its ``geometry``, ``shaping``, ``config_dir``, ``model_path``,
+    ``load_model`` and ``make_target``).
+
+    State: ``k`` (next iteration), ``U`` (its commands), ``command`` (the commands in force on
+    the fans: None until the first iteration of a new run), ``model``, ``target`` and
+    ``target_spec``, ``last_rmse`` [N] (NaN before the first iteration), ``notes`` ((level,
+    text) pairs, level 'info' or 'warning': what the opening found that an operator should read)."""
+
+    def __init__(self, setup, store: RunStore, model, target_spec: str, target, history: list,
+                 k: int, U: np.ndarray, last_completed: int, last_rmse: float, notes: list):
+        geo = setup.geometry
+        self.setup, self.store = setup, store
+        self.fan_names = list(geo.fans.names)
+        self.enabled = geo.fans.enabled
+        self.key_points = geo.key_points
+        self.bounds = setup.shaping.bounds
+        self.model, self.target_spec, self.target = model, target_spec, target
+        self.history = history
+        self.k, self.U = k, U
+        self.last_completed, self.last_rmse = last_completed, last_rmse
+        # a resumed run holds the last completed iteration's next commands at once
+        self.command: np.ndarray | None = U.copy() if last_completed >= 0 else None
+        self.notes = notes
+        self.last_record_folder = None  # the folder of the iteration written last
+
+    @classmethod
+    def open(cls, setup, run_root, run_name: str, target_spec: str, config_snapshot: dict | None = None
+             ) -> 'ShapingRun':
+        """Create ``run_root/run_name`` for ``target_spec`` or resume it (its own target wins;
+        the notes say so). A bad target spec raises before anything is written."""
+        geo = setup.geometry
+        fan_names = list(geo.fans.names)
+        setup.make_target(target_spec)  # refuse a bad spec (reach is checked with the prior below)
+        bounds = setup.shaping.bounds
+        u0 = bounds.project(np.full(len(fan_names), float(setup.shaping.u0)), geo.fans.enabled)
+        info = RunInfo(target_spec, tuple(fan_names), geo.key_points,
+                       {'tunnel': read_yaml(setup.config_dir / 'tunnel.yaml'),
+                        'shaping': read_yaml(setup.config_dir / 'shaping.yaml'),
+                        'model_file': str(setup.model_path), **(config_snapshot or {})})
+        store = RunStore.open(run_root, run_name, info, initial_pwm=u0)
+        state = store.state()
+        notes = []
+        if store.model_path.is_file():
+            model = load_model(store.model_path, geo.fans)
+            notes.append(('info', f'prior from the run folder: {store.model_path}'))
+        else:
+            model = setup.load_model()
+        target = setup.make_target(state.target, model=model)
+        if state.target != target_spec:
+            notes.append(('warning', f'the run {store.folder} has target {state.target!r}; the '
+                                     f'target parameter {target_spec!r} applies to new runs only '
+                                     f'(a run_iteration request can change it)'))
+        history = [past_iteration(r.pwm, r.estimate.mean, r.estimate.std, r.info)
+                   for r in store.load_history()]
+        U = bounds.project(state.next_pwm, geo.fans.enabled)
+        if not np.allclose(U, state.next_pwm):
+            notes.append(('warning', f'the run\'s next commands {state.next_pwm.tolist()} lie '
+                                     f'outside the bounds of shaping.yaml: clipped to {U.tolist()}'))
+        last = state.last_completed
+        last_rmse = float(store.load_record(last)['rmse_N']) if last >= 0 else float('nan')
+        return cls(setup, store, model, state.target, target, history, state.next_k, U, last,
+                   last_rmse, notes)
+
+    # -- requests ---------------------------------------------------------------------------------
+    def prepare(self, target_spec: str = '', step_gain: float = 0.0):
+        """Validate a request before anything changes: (the new target or None, the update
+        rule). Raises WindShaperError with the reason."""
+        spec = target_spec.strip()
+        target = self.setup.make_target(spec, model=self.model) if spec else None
+        rule = self.setup.shaping.make_rule(**({'gain': float(step_gain)} if step_gain > 0 else {}))
+        return target, rule
+
+    def set_target(self, spec: str, target) -> bool:
+        """Make ``target`` (validated by ``prepare``) the run's target; False if it already was."""
+        if spec == self.target_spec:
+            return False
+        self.store.set_target(spec)
+        self.target, self.target_spec = target, spec
+        return True
+
+    def model_from_text(self, text: str, source: str):
+        """Build a model file's prior for the tunnel's fans and check that its Jacobian at the
+        current commands is finite; ConfigError with the reason otherwise."""
+        try:
+            model = model_from_text(text, self.setup.geometry.fans, source=source)
+        except WindShaperError as exc:
+            raise ConfigError(str(exc)) from None
+        J = model.jacobian(self.U, self.key_points)
+        if J.shape != (len(self.key_points), len(self.fan_names)) or not np.all(np.isfinite(J)):
+            raise ConfigError(f'{source}: the model\'s Jacobian at the current commands is not '
+                              f'finite; check its parameters')
+        return model
+
+    def set_model(self, text: str, source: str):
+        """Swap the prior for the model file ``text`` (kept in the run folder); the old one stays
+        if it is refused (ConfigError)."""
+        model = self.model_from_text(text, source)
+        self.store.save_model_text(text)
+        self.model = model
+        return model
+
+    # -- the update ----------------------------------------------------------------------------------
+    def complete(self, k: int, U: np.ndarray, rule, answer: FieldAnswer, stamps: dict) -> IterationData:
+        """The update rule's step from the measured field, bounded; written to the run folder
+        before the run advances to k + 1 (so a crash leaves either the old or the new state)."""
+        kp = np.asarray(answer.key_points, dtype=float)
+        if kp.shape != self.key_points.shape or not np.allclose(kp, self.key_points, atol=1e-9):
+            raise IterationStopped(FAILED, f'the field estimator used {len(kp)} other key points '
+                                   f'than the coordinator ({len(self.key_points)}): both must read '
+                                   f'the same config_dir')
+        mean, std = np.asarray(answer.mean, float), np.asarray(answer.std, float)
+        sweep = answer.sweep
+        sweep = Sweep(sweep.positions, sweep.forces, sweep.times, U)
+        estimate = FieldEstimate(kp, mean, std, closest_samples(sweep, kp).key_distance,
+                                 int(answer.n_used))
+        target_values, model = self.target.values(kp), self.model
+        J = model.jacobian(U, kp)  # the rule's search direction and the prediction below
+        step = rule.step(UpdateInput(k, U.copy(), target_values - mean, J, self.enabled, std,
+                                     model=model, key_points=kp, target=target_values,
+                                     history=tuple(self.history)))
+        U_next = self.bounds.project(step.U_next, self.enabled)  # never outside the bounds
+        predicted = mean + J @ (U_next - U)
+        stamps['finished'] = time.time()
+        data = IterationData(
+            k=k, target=self.target_spec, pwm_before=U, pwm_after=U_next,
+            step_size=float(step.step_size),
+            rmse=float(np.sqrt(np.mean((mean - target_values) ** 2))),
+            rmse_predicted_after=float(np.sqrt(np.mean((predicted - target_values) ** 2))),
+            estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
+            timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
+                                     'estimator_compute_s': float(answer.compute_s),
+                                     **dict(step.info)})
+        self.last_record_folder = self.store.write_iteration(data)
+        self.history.append(past_iteration(U, mean, std, data.info))
+        self.k, self.U = k + 1, U_next.copy()
+        self.last_completed, self.last_rmse = k, data.rmse
+        self.command = U_next.copy()
+        return data
+
+    @staticmethod
+    def done_message(data: IterationData) -> str:
+        text = (f'iteration {data.k}: RMSE {data.rmse:.4f} N, predicted after the update '
+                f'{data.rmse_predicted_after:.4f} N; step {data.step_size:.3f}; '
+                f'{len(data.sweep)} pairs')
+        if data.info.get('stop'):
+            text += f'; the update rule advises stopping: {data.info.get("stop_reason", "")}'
+        return text
+
+
+async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: int,
+                        clock: Callable[[], float] = time.time) -> IterationData:
+    """One iteration of ``run`` on the rig behind ``ports`` (see the module docstring); returns
+    what was written to the run folder. Raises IterationStopped when it fails or is cancelled:
+    the run then stays at its iteration and the fans at the last completed commands."""
+    k, U = run.k, run.U.copy()
+    stamps = {'started': clock()}
+    # 1. commanding
+    run.command = U
+    ports.set_state(COMMANDING, f'iteration {k}: commanding the fans')
+    await ports.command_fans(U)
+    stamps['applied'] = clock()
+    ports.check_boundary()
+
+    # 2. sweeping, 3. estimating: the estimator refuses a sweep that missed part of the area or
+    # has too few samples, and keeps collecting; sweep again at the same commands and estimate
+    # on all of it.
+    await ports.begin_sweep()
+    stamps['sweep_started'] = clock()
+    for attempt in range(1, max_sweeps + 1):
+        await ports.sweep(k, attempt)
+        stamps['sweep_ended'] = clock()
+        ports.check_boundary()
+        ports.set_state(ESTIMATING, f'iteration {k}: estimating the field')
+        answer = await ports.estimate(k, U)
+        if answer.success:
+            break
+        if attempt == max_sweeps:
+            raise IterationStopped(FAILED, f'no field estimate after {attempt} sweep(s): '
+                                   f'{answer.message}')
+        ports.warn(f'iteration {k}: {answer.message}; sweeping again to fill the gaps '
+                   f'({attempt + 1} of {max_sweeps})')
+    stamps['estimated'] = clock()
+    ports.check_boundary()
+
+    # 4. updating
+    ports.set_state(UPDATING, f'iteration {k}: updating the commands')
+    return run.complete(k, U, rule, answer, stamps)
+
+
+__all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',
+           'CANCELLED', 'PROGRESS', 'IterationStopped', 'FieldAnswer', 'RigPorts', 'FanWatch',
+           'ShapingRun', 'past_iteration', 'run_iteration']

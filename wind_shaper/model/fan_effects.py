@@ -1,0 +1,392 @@
+"""Per-fan candidate effects: wrappers that change chosen fans' jets (``FanGain``, ``FanShift``,
+``FanWidth``, ``FanElongation``, ``FanCurve``, ``FanShape``).
+
+Each term here states one hypothesis about the tunnel, has bounded parameters whose null value
+means "no such effect", prints its formula in ``repr`` and is registered with
+``wind_shaper.model.terms.register_term``, so a model file can name it by ``kind``. Units: positions
+[m, tunnel frame], forces [N], commands U [fraction 0..1 of full PWM].
+
+Each wraps the term it modifies (``FanWrapper``, a ``Wrapper``, see ``fanwise``) and works on
+the fans' parts of it through the fan-resolved protocol: ``FanGain(fans, model, fan='HM2')``
+scales one fan's jet. Which fans: ``fan`` (names, one value each), ``group`` (a mount group, one
+shared value) or neither (every fan). Jacobians: each term returns dPhi/dU analytically.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from ..core.geometry import FanArray
+from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part_batched, fan_thrust_batched,
+                      fan_width, is_fan_sum)
+from .terms import Hyper, register_term
+
+__all__ = ['FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
+
+
+class FanWrapper(Wrapper):
+    """A wrapper that changes chosen fans' jets. Which fans: ``fan`` (a name or list of names;
+    one parameter value per fan), ``group`` (a mount group; one value shared by its fans), or
+    neither (every fan, one value each). Subclasses declare ``hypers`` with size = values per
+    fan (resized here) and implement ``_transform``."""
+
+    def _init_selection(self, fans: FanArray, fan, group, fixed):
+        if fan is not None and group is not None:
+            raise ConfigError(f'{type(self).__name__}: give fan or group, not both')
+        if fan is not None:
+            names = (fan,) if isinstance(fan, str) else tuple(fan)
+            idx = np.array([fans.index(n) for n in names], dtype=int)
+            elem = np.arange(len(idx))
+            self.fan, self.group = names, None
+        elif group is not None:
+            groups = (group,) if isinstance(group, str) else tuple(group)
+            idx, elem = [], []
+            for e, g in enumerate(groups):
+                members = np.flatnonzero(fans.group_mask(g))
+                if len(members) == 0:
+                    raise ConfigError(f'{type(self).__name__}: no fan of group {g!r}; groups are '
+                                      f'{sorted(set(fans.groups))}')
+                idx += members.tolist()
+                elem += [e] * len(members)
+            idx, elem = np.array(idx, dtype=int), np.array(elem, dtype=int)
+            self.fan, self.group = None, (groups[0] if isinstance(group, str) else groups)
+        else:
+            idx = np.arange(fans.n_fans)
+            elem = np.arange(len(idx))
+            self.fan, self.group = None, None
+        if len(set(idx.tolist())) != len(idx):
+            raise ConfigError(f'{type(self).__name__}: a fan is selected twice ({fan or group})')
+        self._idx, self._elem = idx, elem
+        self._where = {int(j): int(e) for j, e in zip(idx, elem)}
+        n_elem = int(elem.max()) + 1
+        fixed = set(fixed or ())
+        unknown = fixed - {h.name for h in type(self).hypers}
+        if unknown:
+            raise ConfigError(f'{type(self).__name__} has no parameters {sorted(unknown)} to fix')
+        self.hypers = tuple(Hyper(h.name, h.size * n_elem, h.bounds, h.fixed or h.name in fixed)
+                            for h in type(self).hypers)
+        self._n_elem = n_elem
+
+    def _param(self, name, default, per=1):
+        """A parameter broadcast to (n_elem * per,) from a scalar, per-element list or full."""
+        value = np.asarray(default, dtype=float).ravel()
+        size = self._n_elem * per
+        if value.size == per and size != per:
+            value = np.tile(value, self._n_elem)
+        if value.size != size:
+            raise ConfigError(f'{type(self).__name__}.{name} needs {size} values '
+                              f'({self._n_elem} x {per}), got {value.size}')
+        return value
+
+    @property
+    def label(self):
+        if self.fan is not None:
+            return f'{self.kind}[{",".join(self.fan)}]'
+        if self.group is not None:
+            groups = (self.group,) if isinstance(self.group, str) else self.group
+            return f'{self.kind}[{",".join(groups)}]'
+        return f'{self.kind}[*]'
+
+    def _structure(self):
+        group = self.group if (self.group is None or isinstance(self.group, str)) else list(self.group)
+        return {'fan': self.fan, 'group': group}
+
+    def to_dict(self):
+        out = super().to_dict()
+        for key in ('fan', 'group'):
+            if out.get(key) is None:
+                out.pop(key, None)
+        return out
+
+    def _transform(self, e, j, U, Z, jacobian):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def fan_part(self, U, Z, j, jacobian):
+        e = self._where.get(int(j))
+        if e is None:
+            return fan_part_batched(self.inner, U, Z, j, jacobian)
+        return self._transform(e, int(j), U, Z, jacobian)
+
+    def _value_and_grad(self, U, Z, jacobian):
+        n = self.n_fans
+        if is_fan_sum(self.inner):  # sum the fans' parts: each computed once
+            value, jac = np.zeros(len(Z)), (np.zeros((len(Z), n)) if jacobian else None)
+            for j in range(n):
+                e = self._where.get(j)
+                v, jv = (self._transform(e, j, U, Z, jacobian) if e is not None
+                         else fan_part_batched(self.inner, U, Z, j, jacobian))
+                value += v
+                if jacobian:
+                    if jv.ndim == 1:
+                        jac[:, j] += jv
+                    else:
+                        jac += jv
+            return value, jac
+        value, jac = self.inner._value_and_grad(U, Z, jacobian)
+        value = value.copy()
+        if jacobian:
+            jac = jac.copy()
+        for j in self._idx:
+            v0, j0 = fan_part_batched(self.inner, U, Z, j, jacobian)
+            v1, j1 = self._transform(self._where[int(j)], int(j), U, Z, jacobian)
+            value += v1 - v0
+            if jacobian:
+                for jj, sign in ((j1, 1.0), (j0, -1.0)):
+                    if jj.ndim == 1:
+                        jac[:, j] += sign * jj
+                    else:
+                        jac += sign * jj
+        return value, jac
+
+    def _fans_text(self, values, fmt):
+        names = self.fans.names
+        if self.group is not None:
+            groups = (self.group,) if isinstance(self.group, str) else self.group
+            return ', '.join(f'{g} fans: {fmt(values[e])}' for e, g in enumerate(groups))
+        return ', '.join(f'{names[j]}: {fmt(values[e])}' for j, e in zip(self._idx, self._elem))
+
+
+@register_term
+class FanGain(FanWrapper):
+    """Hypothesis: a fan delivers ``gain`` times the thrust the prior assumes (a worn or chipped
+    propeller, a tired ESC or motor, or simply the build spread of fans of one mount group).
+
+        Phi_j'(U, z) = gain_j * Phi_j(U, z)       (gain [-], 1 = as the prior; bounds 0.2..2)
+
+    Phi_j is fan j's part of the wrapped term. Detect: the force over that fan is off by a
+    constant factor at every command; its footprint's shape is unchanged."""
+
+    kind = 'fan_gain'
+    hypers = (Hyper('gain', 1, (0.2, 2.0)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, gain=1.0, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.gain = self._param('gain', gain)
+        self._check_bounds()
+
+    def _transform(self, e, j, U, Z, jacobian):
+        v, jv = fan_part_batched(self.inner, U, Z, j, jacobian)
+        g = self.gain[e]
+        return g * v, (None if jv is None else g * jv)
+
+    def fan_thrust(self, U, jacobian):
+        T, dT = fan_thrust_batched(self.inner, U, jacobian)
+        g = np.ones(self.n_fans)
+        g[self._idx] = self.gain[self._elem]
+        return T * g, (dT * g if jacobian else None)
+
+
+    def __repr__(self):
+        return f'FanGain({self._fans_text(self.gain, lambda g: f"x{g:.3g}")}) o ({self.inner!r})'
+
+
+@register_term
+class FanShift(FanWrapper):
+    """Hypothesis: a fan's jet lands ``shift`` = (dx, dy) [m] away from where the prior puts it
+    (a tilted or mis-mounted fan, a bent honeycomb cell above it; bounds +-0.15 m per axis).
+
+        Phi_j'(U, z) = Phi_j(U, z - shift_j)
+
+    Detect: the fan's footprint peak is off its hub: a +/- residual dipole across the hub."""
+
+    kind = 'fan_shift'
+    hypers = (Hyper('shift', 2, (-0.15, 0.15)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, shift=(0.0, 0.0), fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.shift = self._param('shift', shift, per=2)
+        self._check_bounds()
+
+    def shift_of(self, e) -> np.ndarray:
+        return self.shift[2 * e:2 * e + 2]
+
+    def _transform(self, e, j, U, Z, jacobian):
+        return fan_part_batched(self.inner, U, Z - self.shift_of(e), j, jacobian)
+
+
+    def fan_landing(self, j):
+        def compute():
+            base = fan_landing(self.inner, j)
+            e = self._where.get(int(j))
+            return base if e is None else base + self.shift_of(e)
+        return self._memoised(('c', j), compute)
+
+    def __repr__(self):
+        vals = self.shift.reshape(-1, 2)
+        text = self._fans_text(vals, lambda s: f'({100 * s[0]:+.1f}, {100 * s[1]:+.1f}) cm')
+        return f'FanShift({text}) o ({self.inner!r})'
+
+
+@register_term
+class FanWidth(FanWrapper):
+    """Hypothesis: a fan's footprint is ``scale`` times as wide as the prior assumes (a fan
+    mounted closer to or farther from the honeycomb, another propeller; bounds 0.5..2).
+
+        Phi_j'(U, z) = Phi_j(U, c_j + (z - c_j) / scale_j)      (c_j: where the jet lands)
+
+    The peak force stays; the footprint widens or narrows. Detect: a ring-shaped residual
+    around the fan (too low on its flanks when scale > 1)."""
+
+    kind = 'fan_width'
+    hypers = (Hyper('scale', 1, (0.5, 2.0)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, scale=1.0, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.scale = self._param('scale', scale)
+        self._check_bounds()
+
+    def _transform(self, e, j, U, Z, jacobian):
+        c = fan_landing(self.inner, j)
+        return fan_part_batched(self.inner, U, c + (Z - c) / self.scale[e], j, jacobian)
+
+
+    def fan_width(self, j):
+        def compute():
+            w = fan_width(self.inner, j)
+            e = self._where.get(int(j))
+            return w if (w is None or e is None) else w * self.scale[e]
+        return self._memoised(('w', j), compute)
+
+    def __repr__(self):
+        return f'FanWidth({self._fans_text(self.scale, lambda s: f"x{s:.3g}")}) o ({self.inner!r})'
+
+
+@register_term
+class FanElongation(FanWrapper):
+    """Hypothesis: a fan's jet spreads unevenly (a bent guide vane, a tilted mount): the air
+    leaving it is stretched by sqrt(``ratio``) along the direction ``angle`` [rad from +x, CCW]
+    and squeezed by 1/sqrt(ratio) across it, keeping its area (ratio 1 = round; bounds 1..4).
+
+    The stretch acts on the air before the plate averages it: with the jet's local variance
+    v_d = sigma^2/2 - b per axis (b = plate_side^2 / 12, the plate's own blur), the plate sees
+    the covariance S' = v_d R diag(ratio, 1/ratio) R^T + b I instead of S = sigma^2/2 I, so
+
+        Phi_j'(U, z) = det(M) Phi_j(U, c_j + M (z - c_j)),   M = (S S'^-1)^(1/2)
+
+    (c_j: where the jet lands), which keeps the jet's total force. ``ratio`` is thus the ratio of the jet itself, not of
+    what the plate sees. Detect: an elliptical footprint: a four-leaf residual over that fan."""
+
+    kind = 'fan_elongation'
+    hypers = (Hyper('ratio', 1, (1.0, 4.0)), Hyper('angle', 1, (-np.pi, np.pi)))
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, ratio=1.0, angle=0.0,
+                 plate_side: float = PLATE_SIDE, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.ratio = self._param('ratio', ratio)
+        self.angle = self._param('angle', angle)
+        if not 0 < plate_side < 1:
+            raise ConfigError(f'FanElongation.plate_side must be in (0, 1) m; got {plate_side}')
+        self.plate_side = float(plate_side)
+        self._check_bounds()
+
+    def _structure(self):
+        return {**super()._structure(), 'plate_side': self.plate_side}
+
+    def warp(self, e, j) -> np.ndarray:
+        """M (2, 2) for element e and fan j (see the class docstring)."""
+        sigma = fan_width(self.inner, j) or 0.15
+        b = self.plate_side ** 2 / 12.0
+        vp = sigma ** 2 / 2.0
+        vd = max(vp - b, 0.05 * vp)
+        c, s = np.cos(self.angle[e]), np.sin(self.angle[e])
+        R = np.array([[c, -s], [s, c]])
+        r = self.ratio[e]
+        lam = vp / (vd * np.array([r, 1.0 / r]) + (vp - vd))  # eigenvalues of S S'^-1
+        return R @ np.diag(np.sqrt(lam)) @ R.T
+
+    def _transform(self, e, j, U, Z, jacobian):
+        M = self.warp(e, j)
+        c = fan_landing(self.inner, j)
+        v, jv = fan_part_batched(self.inner, U, c + (Z - c) @ M.T, j, jacobian)
+        k = float(np.linalg.det(M))
+        return k * v, (None if jv is None else k * jv)
+
+
+
+    def __repr__(self):
+        vals = np.column_stack([self.ratio, self.angle])
+        text = self._fans_text(vals, lambda v: f'ratio {v[0]:.3g} at {np.degrees(v[1]):.0f} deg')
+        return f'FanElongation({text}) o ({self.inner!r})'
+
+
+@register_term
+class FanCurve(FanWrapper):
+    """Hypothesis: a fan's PWM-to-thrust curve bends more (or less) than the prior's quadratic:
+
+        Phi_j'(U, z) = (1 + bend_j U_j) Phi_j(U, z)        (bend [-], 0 = as the prior; -0.9..3)
+
+    which turns the quadratic P(U) into a cubic (propeller thrust grows faster than U^2 when the
+    motor's speed rises faster than linearly with PWM). Best given per mount group
+    (``group=['higher', 'lower', 'central']``). Detect: the force over a fan is too low at both
+    ends of the command range and too high in the middle (or the reverse)."""
+
+    kind = 'fan_curve'
+    hypers = (Hyper('bend', 1, (-0.9, 3.0)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, bend=0.0, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.bend = self._param('bend', bend)
+        self._check_bounds()
+
+    def _transform(self, e, j, U, Z, jacobian):
+        v, jv = fan_part_batched(self.inner, U, Z, j, jacobian)
+        b = self.bend[e]
+        f = 1.0 + b * U[:, j]
+        if not jacobian:
+            return v * f, None
+        if jv.ndim == 1:
+            return v * f, jv * f + b * v
+        jac = jv * f[:, None]
+        jac[:, j] += b * v
+        return v * f, jac
+
+    def fan_thrust(self, U, jacobian):
+        T, dT = fan_thrust_batched(self.inner, U, jacobian)
+        b = np.zeros(self.n_fans)
+        b[self._idx] = self.bend[self._elem]
+        f = 1.0 + b[None, :] * U
+        return T * f, (dT * f + T * b[None, :] if jacobian else None)
+
+
+    def __repr__(self):
+        return f'FanCurve({self._fans_text(self.bend, lambda b: f"(1 {b:+.3g} U)")}) o ({self.inner!r})'
+
+
+@register_term
+class FanShape(FanWrapper):
+    """Hypothesis: a fan's footprint is flat-topped (or peaked) rather than Gaussian: the
+    straightener evens out the jet's core, so the force stays near its peak over the hub and
+    falls faster on the shoulder. With d the distance to where the jet lands and sigma its width,
+
+        exp(-d^2 / sigma^2)  becomes  exp(-(d / sigma)^flatness)   (flatness 2 = Gaussian; 1..6)
+
+    done by moving each point radially to c_j + (z - c_j) (d / sigma)^(flatness / 2 - 1).
+    Best given per mount group of edge fans. Detect: residuals positive on the shoulder ring of
+    every fan of a group and negative further out (flatness > 2)."""
+
+    kind = 'fan_shape'
+    hypers = (Hyper('flatness', 1, (1.0, 6.0)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, flatness=2.0, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.flatness = self._param('flatness', flatness)
+        self._check_bounds()
+
+    def _transform(self, e, j, U, Z, jacobian):
+        c = fan_landing(self.inner, j)
+        sigma = fan_width(self.inner, j) or 0.15
+        d = Z - c
+        r = np.sqrt(np.einsum('mk,mk->m', d, d)) / sigma
+        f = np.power(np.maximum(r, 1e-12), 0.5 * self.flatness[e] - 1.0)
+        return fan_part_batched(self.inner, U, c + d * f[:, None], j, jacobian)
+
+
+    def __repr__(self):
+        text = self._fans_text(self.flatness, lambda b: f"exp(-(d/sigma)^{b:.3g})")
+        return f'FanShape({text}) o ({self.inner!r})'
