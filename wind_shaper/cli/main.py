@@ -67,13 +67,33 @@ def _cmd_shape(args) -> int:
 def _cmd_calibrate(args) -> int:
     from ..app import Setup, calibrate, save_fit
     if not args.sim:
-        print('calibrate needs --sim here (on the rig the node graph collects the batch)', file=sys.stderr)
+        print('wind-shaper calibrate runs on the built-in simulated tunnel only so far: add --sim. '
+              'Collecting the calibration batch on a rig through the node graph is not built yet.',
+              file=sys.stderr)
         return 2
     setup = Setup.load(args.config, args.disable)
     fit = calibrate(setup.make_sim(seed=args.seed), setup.geometry.fans)
     out = args.out or setup.model_path
     save_fit(out, fit, source=f'simulated tunnel, seed {args.seed}')
     print(f'fitted {fit.model!r}\nRMSE {fit.rmse:.4f} N on {fit.n} samples; written to {out}')
+    return 0
+
+
+def _cmd_targets_template(args) -> int:
+    from ..app import Setup
+    from ..control import write_template_csv
+    setup = Setup.load(args.config, args.disable)
+    kp = setup.geometry.key_points
+    target = setup.make_target(args.start)
+    if args.out.exists() and not args.force:
+        print(f'wind-shaper: error: {args.out} exists; choose another file or add --force to '
+              f'overwrite it', file=sys.stderr)
+        return 2
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_template_csv(args.out, kp, target.values(kp))
+    print(f'wrote {args.out}: {len(kp)} key points of {setup.config_dir / "tunnel.yaml"} with the '
+          f'forces of {target.describe()!r}; edit the force column [N], then use '
+          f'--target csv:{args.out}')
     return 0
 
 
@@ -109,6 +129,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--sim', action='store_true', help='calibrate on the simulated tunnel')
     p.add_argument('--out', type=Path, default=None, help='model file to write (default: config/model.yaml)')
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser('targets', help='target profiles: write a CSV template to edit by hand')
+    targets = p.add_subparsers(dest='targets_command', required=True)
+    p = targets.add_parser('template', help='write x,y,force for every key point of the tunnel '
+                                            '(forces from --start), for --target csv:FILE')
+    _common(p)
+    p.add_argument('out', type=Path, help='CSV file to write')
+    p.add_argument('--start', default='uniform', metavar='TARGET',
+                   help='profile whose forces fill the force column (default: uniform, 2.5 N); '
+                        'any --target form')
+    p.add_argument('--force', action='store_true', help='overwrite an existing file')
+    p.set_defaults(func=_cmd_targets_template)
 
     # Subcommands that talk to the ROS graph live in their own modules (rclpy imported lazily).
     for module in _GRAPH_COMMANDS:
