@@ -17,12 +17,16 @@ from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
+from .unmodelled_effects import (OTHER_FORM, OUTSIDE_LIBRARY, HoneycombBlockage, PlenumStarvation,
+                                 QuadraticSwirl, SideDraft, StandWake)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
     'NoiseModel', 'TourPath', 'RandomWalkPath', 'path_from_config',
     'HiddenEffect', 'WeakFan', 'Swirl', 'WallBoundaryLayer', 'JetInteraction', 'DeadBand',
     'TiltedFan', 'ElongatedFootprint', 'BackgroundDraft', 'HIDDEN_EFFECTS', 'make_effect',
+    'HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
+    'OUTSIDE_LIBRARY', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]

@@ -390,6 +390,8 @@ def candidate_for_hidden_effect(effect) -> tuple[str, dict]:
         return 'dead_band', {'threshold': t['threshold'], 'saturation': t['saturation']}
     if name == 'background_draft':
         return 'background', {'force': t['force']}
+    if name == 'quadratic_swirl':  # swirl in another form: the family, no value to compare
+        return 'swirl', {}
     raise CandidateError(f'no library candidate stands for the hidden effect {name!r}')
 
 
