@@ -45,6 +45,7 @@ import numpy as np
 
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
+from .consistency import SweepCheck, check_across_sweeps
 from .data import FitData, SweepSet
 from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
@@ -97,6 +98,7 @@ class Trial:
     passed: bool = False
     reasons: list = field(default_factory=list)
     finding: str = ''
+    check: SweepCheck | None = None
 
     def to_json(self) -> dict:
         def clean(v):
@@ -110,7 +112,8 @@ class Trial:
                 'heldout_model_rmse_N': round(self.heldout_rmse, 6),
                 'heldout_raw_rmse_N': round(self.heldout_raw_rmse, 6),
                 'heldout_gain': round(self.gain, 4), 'passed': self.passed,
-                'reasons': list(self.reasons), 'finding': self.finding}
+                'reasons': list(self.reasons), 'finding': self.finding,
+                'across_sweeps': self.check.to_json() if self.check is not None else None}
 
 
 class Diagnosis:
@@ -122,20 +125,23 @@ class Diagnosis:
     per step; max_nfev: cap on a refit's iterations; noise_sd [N]: the measurement noise per
     sample, when the held-out sweeps are too short to estimate it (they must revisit places);
     min_spread [fraction of full PWM]: the least command spread (``SweepSet.command_spread``)
-    at which findings are reported (0 switches the check off).
+    at which findings are reported (0 switches the check off); check_sweeps: check every effect
+    the selection added sweep by sweep before naming it (``consistency``).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
                  test_fraction: float = 1 / 3, test=None, min_gain: float = 0.2,
                  min_dbic: float = 10.0, min_z: float = 3.0, material: float = 0.5,
                  max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
-                 noise_sd: float | None = None, min_spread: float = 0.10):
+                 noise_sd: float | None = None, min_spread: float = 0.10,
+                 check_sweeps: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
         self.min_spread = min_spread
         self.max_effects, self.refine, self.max_nfev = max_effects, refine, max_nfev
         self.noise_sd = noise_sd
+        self.check_sweeps = check_sweeps
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -259,13 +265,17 @@ class Diagnosis:
             best, fit = min(passing, key=lambda tf: tf[0].bic)
             polished, fit = self._refine(best, current, current_rmse, data=self.train_, max_nfev=15)
             polished.std = self._uncertainty(polished, current, fit)
-            polished.passed, polished.reasons = True, []
+            polished.passed, polished.reasons, polished.check = True, [], best.check
             ranking[ranking.index(best)] = polished
             best = polished
             best.finding = best.candidate.describe(_node(fit.model, best.candidate.label), best.std)
             self.steps_.append(best)
             accepted.append(best.candidate.name)
             current, current_rmse = fit, best.heldout_rmse
+        self.demoted_ = []
+        if self.check_sweeps and self.steps_:
+            current = self._check_findings()
+            current_rmse = self._evaluate(current.model)[0]
         self.final_ = current
         self.final_rmse_ = current_rmse
         self.final_raw_ = self._evaluate(current.model)[1]
@@ -276,6 +286,45 @@ class Diagnosis:
         else:
             self.verdict_ = 'unexplained'
         return self
+
+    def _rebuild(self, steps: list) -> FitResult:
+        """The baseline model with the effects of ``steps`` added, refitted on the training
+        sweeps."""
+        model = self.baseline_.model
+        for t in steps:
+            model = apply_candidate(model, t.candidate, **t.params)
+        if not steps:
+            return self.baseline_
+        return fit_model(model, self.train_, free=fit_mask(model), max_nfev=15)
+
+    def _check_findings(self) -> FitResult:
+        """Check every effect the selection added across sweeps, each in the model with all
+        the others (an effect checked before a second real one is in the model would be
+        perturbed by it); demote the one that fails worst and check the rest again, until all
+        pass. Returns the final fit; ``steps_`` keeps what passed, ``demoted_`` the rest."""
+        kept = list(self.steps_)
+        while kept:
+            final = self._rebuild(kept)
+            failed = []
+            for t in kept:
+                without = self._rebuild([o for o in kept if o is not t])
+                t.check = check_across_sweeps(final.model, t.candidate.label, t.candidate.null,
+                                              self.train_, self.heldout_, without.model)
+                if not t.check.passed:
+                    failed.append(t)
+            if not failed:
+                break
+            worst = min(failed, key=lambda t: t.check.p_value)
+            worst.passed, worst.reasons = False, list(worst.check.reasons)
+            self.demoted_.append(worst)
+            kept.remove(worst)
+        final = self._rebuild(kept)
+        for t in kept:  # the parameters as the final model has them
+            node = _node(final.model, t.candidate.label)
+            t.params = t.candidate.params(node)
+            t.finding = t.candidate.describe(node, t.std)
+        self.steps_ = kept
+        return final
 
     def _uncertainty(self, t: Trial, previous: FitResult, fit: FitResult) -> dict:
         """max(Gauss-Newton, delete-one-sweep jackknife) per parameter of the candidate; the
@@ -333,17 +382,31 @@ class Diagnosis:
                 return (f'No effect can be identified on these sweeps: the held-out model error is '
                         f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N), but the sweeps\' '
                         f'commands barely vary. See the residual\'s structure below.{tail}')
-            best = self.ranking_[0] if self.ranking_ else None
-            lowers = (f'lowers it by only {100 * best.gain:.0f} %' if best is not None and best.gain >= 0.005
-                      else 'does not lower it')
-            more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
+            if self.demoted_:
+                more = ' ' + self._demoted_text()
+            else:
+                best = self.ranking_[0] if self.ranking_ else None
+                lowers = (f'lowers it by only {100 * best.gain:.0f} %' if best is not None and best.gain >= 0.005
+                          else 'does not lower it')
+                more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
             return (f'No candidate explains the residual: the held-out model error stays at '
                     f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{more} '
                     f'See the residual\'s structure below.')
         lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(self.steps_)]
+        tail = f'\n{self._demoted_text()}' if self.demoted_ else ''
         return (f'Found {len(self.steps_)} effect(s); held-out model error '
                 f'{self.baseline_rmse_:.3f} N -> {self.final_rmse_:.3f} N '
-                f'({100 * (1 - self.final_rmse_ / self.baseline_rmse_):.0f} % lower):\n' + '\n'.join(lines))
+                f'({100 * (1 - self.final_rmse_ / self.baseline_rmse_):.0f} % lower):\n' + '\n'.join(lines)
+                + tail)
+
+    def _demoted_text(self) -> str:
+        """'Partly explained by X, but not reported: ...' for effects that failed the check
+        across sweeps."""
+        parts = [f'{t.candidate.title} (it lowers the held-out error {100 * t.gain:.0f} %), but '
+                 f'{"; ".join(t.reasons)}' for t in self.demoted_]
+        return ('Partly explained by ' + '; and by '.join(parts)
+                + '. So that is not reported as a finding: the physics is likely something the '
+                  'library lacks.')
 
     def to_json(self) -> dict:
         return {
@@ -356,6 +419,7 @@ class Diagnosis:
             'final': {'model': repr(self.final_.model), 'train_rmse_N': self.final_.rmse,
                       'heldout_model_rmse_N': self.final_rmse_, 'heldout_raw_rmse_N': self.final_raw_},
             'findings': [t.to_json() for t in self.steps_],
+            'not_reported': [t.to_json() for t in self.demoted_],
             'rankings': [[t.to_json() for t in r] for r in self.rankings_],
             'guard': {'min_gain': self.min_gain, 'min_dbic': self.min_dbic, 'min_z': self.min_z,
                       'material': self.material, 'min_spread': self.min_spread},
