@@ -14,7 +14,7 @@ from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batch
                       param_slices, refix, set_fixed, term_label, walk, wrap)
 from .fan_effects import (FanCurve, FanElongation, FanGain, FanShape, FanShift, FanWidth,
                           FanWrapper)
-from .flow_effects import Background, DeadBand, JetInteraction, Swirl, WallLayer
+from .flow_effects import Background, DeadBand, JetInteraction, Swirl, SwirlQuadratic, WallLayer
 from .modelfile import FORMAT_VERSION, load_model, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
 from .calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
@@ -32,7 +32,7 @@ __all__ = [
     # fan_effects: per-fan candidate effects
     'FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
-    'Swirl', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer',
+    'Swirl', 'SwirlQuadratic', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer',
     # modelfile: model files
     'save_model', 'load_model', 'model_from_text', 'FORMAT_VERSION',
     # plugins: user terms, families and simulator effects

@@ -28,7 +28,7 @@ from .fanwise import (PLATE_SIDE, Wrapper, _full, fan_landing, fan_part_batched,
                       fan_width)
 from .terms import Hyper, Term, register_term
 
-__all__ = ['Swirl', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer']
+__all__ = ['Swirl', 'SwirlQuadratic', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer']
 
 _EPS_T2 = 1e-4  # [N^2] regularises sqrt(T_i T_j) at zero thrust
 _DZ = 1e-5      # [m] spatial step of Swirl's central differences
@@ -43,15 +43,18 @@ class Swirl(Wrapper):
     """Hypothesis: swirl the honeycomb leaves in the flow turns the whole field about the tunnel
     axis when CW and CCW thrusts are unbalanced, by
 
-        theta(U) = gain * sum_j s_j T_j(U) / sum_j T_j(U)     [rad, counter-clockwise from above]
+        b(U) = sum_j s_j T_j(U) / sum_j T_j(U)
+        theta(U) = gain * b + curvature * b |b|     [rad, counter-clockwise from above]
         Phi'(U, z) = Phi(U, R(-theta) z)
 
     with s_j = +1 for CCW and -1 for CW fans and T_j each fan's thrust (``fan_thrust``).
-    gain [rad] bounds -1.5..1.5, 0 = no swirl. Detect: a residual that is antisymmetric about
-    every fan (a rotation) and flips sign with the CW/CCW balance."""
+    gain [rad] bounds -1.5..1.5, 0 = no swirl. Here curvature is 0: the angle is proportional
+    to the imbalance (``SwirlQuadratic`` frees it). Detect: a residual that is antisymmetric
+    about every fan (a rotation) and flips sign with the CW/CCW balance."""
 
     kind = 'swirl'
     hypers = (Hyper('gain', 1, (-1.5, 1.5)),)
+    curvature = 0.0
 
     def __init__(self, fans: FanArray, term, gain: float = 0.0, fixed=()):
         self._init_inner(fans, term)
@@ -67,11 +70,13 @@ class Swirl(Wrapper):
         W = T @ s
         ok = S > 1e-9
         safe = np.where(ok, S, 1.0)
-        theta = np.where(ok, self.gain * W / safe, 0.0)
+        b = np.where(ok, W / safe, 0.0)
+        theta = self.gain * b + self.curvature * b * np.abs(b)
         if not jacobian:
             return theta, None
-        dtheta = self.gain * dT * (s[None, :] * safe[:, None] - W[:, None]) / safe[:, None] ** 2
-        return theta, np.where(ok[:, None], dtheta, 0.0)
+        slope = self.gain + 2 * self.curvature * np.abs(b)  # dtheta/db
+        db = dT * (s[None, :] * safe[:, None] - W[:, None]) / safe[:, None] ** 2
+        return theta, np.where(ok[:, None], slope[:, None] * db, 0.0)
 
     @staticmethod
     def _rotate(Z, theta):
@@ -110,7 +115,26 @@ class Swirl(Wrapper):
         return value, _full(jv, j, self.n_fans) + along[:, None] * dtheta
 
     def __repr__(self):
-        return f'Swirl(theta = {self.gain:.3g} rad * (T_ccw - T_cw) / T) o ({self.inner!r})'
+        quad = f' + {self.curvature:.3g} rad * b|b|' if self.curvature else ''
+        return f'Swirl(theta = {self.gain:.3g} rad * b{quad}, b = (T_ccw - T_cw) / T) o ({self.inner!r})'
+
+
+@register_term
+class SwirlQuadratic(Swirl):
+    """Hypothesis: swirl (see ``Swirl``) whose angle is not proportional to the CW/CCW
+    imbalance b: theta = gain * b + curvature * b |b| [rad], curvature [rad] bounds -5..5
+    (0 = ``Swirl``). The wider form of the swirl family, for a straightener that lets more swirl
+    through the more unbalanced the fans are."""
+
+    kind = 'swirl_quadratic'
+    hypers = (Hyper('gain', 1, (-1.5, 1.5)), Hyper('curvature', 1, (-5.0, 5.0)))
+
+    def __init__(self, fans: FanArray, term, gain: float = 0.0, curvature: float = 0.0, fixed=()):
+        self._init_inner(fans, term)
+        self.gain = float(gain)
+        self.curvature = float(curvature)
+        self._init_hypers(fixed)
+        self._check_bounds()
 
 
 def _plate_gauss(Z, centres, widths, side):

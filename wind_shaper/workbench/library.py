@@ -24,8 +24,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..model import (Background, CentralRing, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
-                     FanShift, FanWidth, FanWrapper, JetInteraction, Sum, Swirl, Term, WallLayer,
-                     Wrapper, find_term, has_fan_parts, walk)
+                     FanShift, FanWidth, FanWrapper, JetInteraction, Sum, Swirl, SwirlQuadratic, Term,
+                     WallLayer, Wrapper, find_term, has_fan_parts, walk)
 from ..core.geometry import TunnelGeometry
 from .errors import CandidateError
 
@@ -219,19 +219,30 @@ def _group_refinements(model, geometry):
 
 def _swirl_family(model, geometry):
     fans = geometry.fans
-    if any(getattr(t, 'kind', '') == 'swirl' for t in walk(model)) or len(set(fans.spin_sign)) < 2:
+    if (any(getattr(t, 'kind', '') in ('swirl', 'swirl_quadratic') for t in walk(model))
+            or len(set(fans.spin_sign)) < 2):
         return []
 
     def describe(node, std):
         g, s = float(node.gain), float(std.get('gain', [np.nan])[0])
-        sense = 'counter-clockwise' if g > 0 else 'clockwise'
+        c, cs = float(node.curvature), float(std.get('curvature', [np.nan])[0])
+        at20 = g * 0.2 + c * 0.04
+        sense = 'counter-clockwise' if at20 > 0 else 'clockwise'
+        quad = (f', plus {_pm(c, cs)} rad x b|b| (the angle grows faster than the imbalance b)'
+                if node.kind == 'swirl_quadratic' else '')
         return (f'the field turns {sense} about the tunnel axis when the CCW fans out-thrust the CW ones '
                 f'(propeller swirl the straightener leaves): {_pm(g, s)} rad per unit of '
-                f'(T_ccw - T_cw) / T, e.g. {abs(np.degrees(g)) * 0.2:.0f} deg at a 20 % imbalance')
-    return [Candidate('swirl', 'swirl', 'swirl rotation of the field',
-                      'residual propeller swirl turns the field about the axis when CW and CCW thrusts '
-                      'are unbalanced', lambda m, **p: Swirl(fans, m, **p), 'outer', 'swirl',
-                      {'gain': 0.0}, describe, ({'gain': 0.3}, {'gain': -0.3}))]
+                f'b = (T_ccw - T_cw) / T{quad}, e.g. {abs(np.degrees(at20)):.0f} deg at a 20 % imbalance')
+    story = 'residual propeller swirl turns the field about the axis when CW and CCW thrusts are unbalanced'
+    return [Candidate('swirl', 'swirl', 'swirl rotation of the field', story,
+                      lambda m, **p: Swirl(fans, m, **p), 'outer', 'swirl',
+                      {'gain': 0.0}, describe, ({'gain': 0.3}, {'gain': -0.3})),
+            # the wider form: an angle that grows faster (or slower) than the imbalance
+            Candidate('swirl_quadratic', 'swirl', 'swirl rotation of the field, growing faster than '
+                      'the imbalance', story + ', by an angle not proportional to the imbalance',
+                      lambda m, **p: SwirlQuadratic(fans, m, **p), 'outer', 'swirl_quadratic',
+                      {'gain': 0.0, 'curvature': 0.0}, describe,
+                      ({'gain': 0.3, 'curvature': 0.0}, {'gain': -0.3, 'curvature': 0.0}))]
 
 
 def _interaction_family(model, geometry):
@@ -390,8 +401,8 @@ def candidate_for_hidden_effect(effect) -> tuple[str, dict]:
         return 'dead_band', {'threshold': t['threshold'], 'saturation': t['saturation']}
     if name == 'background_draft':
         return 'background', {'force': t['force']}
-    if name == 'quadratic_swirl':  # swirl in another form: the family, no value to compare
-        return 'swirl', {}
+    if name == 'quadratic_swirl':  # swirl in another form: the family's wider candidate
+        return 'swirl_quadratic', {'gain': t['gain'], 'curvature': t['curvature']}
     raise CandidateError(f'no library candidate stands for the hidden effect {name!r}')
 
 

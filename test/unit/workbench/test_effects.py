@@ -33,6 +33,7 @@ def _instances(fans, base):
         'fan_curve': E.FanCurve(fans, base, group=['higher', 'lower', 'central'], bend=[0.4, 0.3, 1.0]),
         'fan_shape': E.FanShape(fans, base, group=['higher', 'lower'], flatness=[2.3, 2.1]),
         'swirl': E.Swirl(fans, base, gain=0.5),
+        'swirl_quadratic': E.SwirlQuadratic(fans, base, gain=0.3, curvature=0.8),
         'jet_interaction': E.JetInteraction(fans, base, strength=0.3, width=1.1),
         'dead_band': E.DeadBand(fans, base, threshold=0.12, saturation=0.75),
         'wall_layer': E.WallLayer(fans, base, thickness=0.06),

@@ -64,3 +64,19 @@ def test_the_check_refuses_a_patch_and_keeps_a_real_effect(wb_setup, reference, 
     assert sure.sum() >= 3 and np.all(np.abs(check.values[sure, 0] - 0.8) < 0.04)
     doc = check.to_json()
     assert doc['passed'] and len(doc['per_sweep']) == len(check.signal)
+
+
+@pytest.mark.slow
+def test_an_effect_of_the_library_in_another_form_is_found_by_its_wider_candidate(diagnosed):
+    # swirl whose angle grows as gain b + curvature b|b| (not proportional to the imbalance b):
+    # the one-parameter swirl fits it differently in every sweep; the wider form holds
+    d, (hidden,) = diagnosed('quadratic_swirl')
+    _assert_findings_hold(d)
+    expected, truth = candidate_for_hidden_effect(hidden)
+    assert [t.candidate.name for t in d.steps_] == [expected] == ['swirl_quadratic']
+    params = d.steps_[0].params
+    assert abs(params['gain'] - truth['gain']) < 0.1 and abs(params['curvature'] - truth['curvature']) < 0.35
+    assert d.final_rmse_ < 0.25 * d.baseline_rmse_
+    # and a swirl proportional to the imbalance is still the one-parameter candidate
+    d, _ = diagnosed('swirl')
+    assert [t.candidate.name for t in d.steps_] == ['swirl']
