@@ -148,3 +148,20 @@ def test_the_whole_way_through_a_bag(tmp_path, capsys):
                                lambda s: setup.make_sim(seed=s, effects=[weak]), target='gaussian@HM2',
                                iterations=6, rule_overrides={'method': 'paper'})
     assert loop.at(6)['after'] < loop.at(6)['before']
+
+
+@pytest.mark.slow
+def test_diagnose_on_physics_the_library_lacks_names_nothing_and_shows_the_check(tmp_path, capsys):
+    # a blocked patch of the straightener: HM2's elongation patches it, but not the same in every
+    # sweep; the report says so and shows the per-sweep values (the report once crashed here)
+    diag = tmp_path / 'diag'
+    assert main(['model', 'diagnose', '--sim', '--hidden', 'honeycomb_blockage', '--out', str(diag)]) == 0
+    printed = capsys.readouterr().out
+    assert 'No candidate explains the residual' in printed and 'Partly explained by' in printed
+    doc = _summary(diag)
+    assert doc['verdict'] == 'unexplained' and doc['findings'] == []
+    refused = doc['not_reported'][0]
+    assert not refused['passed'] and not refused['across_sweeps']['passed']
+    assert any('does not hold across sweeps' in r for r in refused['reasons'])
+    report = (diag / 'report.md').read_text()
+    assert 'across sweeps (pooled' in report and 'refitted on the sweep' in report

@@ -199,9 +199,24 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
                     ('; '.join(t.reasons) or 'passes, not the best')] for k, t in enumerate(ranking[:15])],
                   heading=f'Step {i + 1}: candidates in order of training BIC (lowest first): the refined '
                           f'ones, then those only screened')
-        before = d.baseline_rmse_ if i == 0 else d.steps_[i - 1].heldout_rmse
+        before = d.baseline_rmse_ if i == 0 else d.selected_[i - 1].heldout_rmse
         rep.figure(f'ranking_step{i + 1}', plot_ranking(ranking, before),
                    f'held-out model error with each candidate at step {i + 1} (in the table\'s order)')
+    for t in d.selected_:  # every effect the selection added, checked across sweeps
+        c = t.check
+        if c is None:
+            continue
+        labels = list(d.train_sweeps_.labels)
+        rows = [[labels[i] if i < len(labels) else i, _fmt(c.signal[i]),
+                 ', '.join(f'{v:.4g} ± {e:.2g}' for v, e in zip(c.values[i], c.stds[i]))
+                 if c.informative[i] else 'too little signal',
+                 ('disagrees' if c.disagree[i] else 'agrees') if c.informative[i] else '']
+                for i in range(len(c.signal))]
+        verdict = 'holds' if c.passed else 'refused: ' + '; '.join(c.reasons)
+        rep.table(['training sweep', 'signal [N]', f'{", ".join(c.names)} refitted on the sweep',
+                   'with the pooled fit'], rows,
+                  heading=f'{t.candidate.title} across sweeps (pooled '
+                          f'{", ".join(f"{v:.4g}" for v in c.pooled)}): {verdict}')
     every = data.fit_data(d.cell)  # all sweeps: the structure needs many commands
     analyses = {'before': analyse_residuals(d.baseline_.model, every, geometry)}
     if d.steps_:

@@ -33,6 +33,11 @@ run). There the held-out sweeps share the training sweeps' commands, so a term t
 patches the residual at that operating point passes the held-out test too; no candidate is then
 reported, and the verdict carries a warning saying what data to record instead.
 
+Every effect the selection added is then checked across sweeps (``consistency``): refitted sweep
+by sweep, it must keep one value whatever the commands. One that fails is demoted (``demoted_``:
+"partly explained by ..., but ...") and never named; ``steps_`` keeps the findings and
+``selected_`` every step of the selection in order.
+
 Reported parameters come from a refit on every training cell; their uncertainty is the larger of the
 Gauss-Newton standard error and a delete-one-sweep jackknife (sweeps are the independent units).
 """
@@ -273,6 +278,7 @@ class Diagnosis:
             accepted.append(best.candidate.name)
             current, current_rmse = fit, best.heldout_rmse
         self.demoted_ = []
+        self.selected_ = list(self.steps_)  # every step of the selection, in order
         if self.check_sweeps and self.steps_:
             current = self._check_findings()
             current_rmse = self._evaluate(current.model)[0]
