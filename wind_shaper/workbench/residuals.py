@@ -10,7 +10,10 @@
 * the residual against radius and against angle (binned means), and the share of its
   variance each explains (eta^2): a radial pattern points at the wall or the footprints' shape,
   an angular one at swirl or a lopsided fan;
-* which fans' neighbourhoods (nearest hub) and which rings carry the squared error.
+* which fans' neighbourhoods (nearest hub) and which rings carry the squared error;
+* whether the map is a tilt (a plane across the tunnel, with its direction), and what the
+  residual at its peak follows from sweep to sweep: one fan's command, the total thrust, the
+  CW/CCW balance, or no command at all.
 
 ``describe()`` puts the structure in plain words for the "no candidate explains the residual"
 verdict. Positions [m, tunnel frame], forces [N], commands [fraction].
@@ -92,6 +95,22 @@ class ResidualAnalysis:
         k = int(np.argmax(score))
         return self.grid[k], float(self.map_mean[k])
 
+    def tilt(self):
+        """(direction [deg from +x] in which the residual grows, its slope [N per 10 cm], share
+        of the smoothed map's variance a plane explains), or None for a flat map."""
+        m = self.map_mean - self.map_mean.mean()
+        if float(m @ m) <= 0 or self.positions is None:
+            return None
+        # the share from the smoothed map (is it a plane?), the slope from the samples (the map
+        # flattens towards the edge, where the smoothing has no data beyond)
+        X = np.column_stack([np.ones(len(self.grid)), self.grid])
+        coef, *_ = np.linalg.lstsq(X, self.map_mean, rcond=None)
+        fit = X @ coef - self.map_mean.mean()
+        P = np.column_stack([np.ones(len(self.positions)), self.positions])
+        (_, gx, gy), *_ = np.linalg.lstsq(P, self.residuals, rcond=None)
+        return (float(np.degrees(np.arctan2(gy, gx))), float(0.1 * np.hypot(gx, gy)),
+                float((fit @ fit) / (m @ m)))
+
     def describe(self) -> list[str]:
         """The residual's structure in plain sentences, strongest first."""
         out = []
@@ -113,6 +132,12 @@ class ResidualAnalysis:
             out.append(f'it has a radial pattern ({100 * self.radial_eta2:.0f} % of its variance): '
                        f'strongest at r = {c[k]:.2f} m, where the model is {"low" if m[k] > 0 else "high"} '
                        f'by {abs(m[k]):.2f} N on average')
+        tilt = self.tilt()
+        if tilt is not None and tilt[2] >= 0.5:
+            direction, per_10cm, share = tilt
+            out.append(f'it tilts across the tunnel ({100 * share:.0f} % of the smoothed map is a plane): '
+                       f'the model is increasingly low towards {direction:.0f} deg from +x, by '
+                       f'{per_10cm:.2f} N per 10 cm')
         if self.angular_eta2 >= 0.15:
             c, m, _ = self.angular
             k = int(np.nanargmax(np.abs(m)))
@@ -235,7 +260,11 @@ def _what_it_follows(where, data: FitData, r, fans, radius: float = 0.06) -> str
         return ''
     best = ('', 0.0)
     options = [(f"fan {fans.names[j]}'s command", cmd[:, j]) for j in range(fans.n_fans) if fans.enabled[j]]
-    options.append(('the total thrust of all fans (sum of U^2)', (cmd[:, fans.enabled] ** 2).sum(axis=1)))
+    thrust = cmd[:, fans.enabled] ** 2  # thrust grows about as U^2
+    options.append(('the total thrust of all fans (sum of U^2)', thrust.sum(axis=1)))
+    total = np.maximum(thrust.sum(axis=1), 1e-9)
+    options.append(('the CW/CCW balance ((T_ccw - T_cw) / T, as swirl would)',
+                    thrust @ fans.spin_sign[fans.enabled] / total))
     for label, x in options:
         xc = x - x.mean()
         if float(xc @ xc) <= 0:
@@ -243,4 +272,8 @@ def _what_it_follows(where, data: FitData, r, fans, radius: float = 0.06) -> str
         r2 = float((xc @ rn) ** 2 / (xc @ xc) / sst)
         if r2 > best[1]:
             best = (label, r2)
-    return f'{best[0]} (R² {best[1]:.2f} over {len(sweeps)} sweeps)' if best[1] >= 0.5 else ''
+    if best[1] >= 0.5:
+        return f'{best[0]} (R² {best[1]:.2f} over {len(sweeps)} sweeps)'
+    if abs(res.mean()) > 2.5 * res.std():
+        return f'no command: it stays about {res.mean():+.2f} N in every one of {len(sweeps)} sweeps'
+    return ''
