@@ -1,0 +1,179 @@
+"""Experiment designs: the fan commands of a set of sweeps, checked before any fan sees them.
+
+A design is a table: one row per sweep, one column per fan, commands as fractions 0..1 of full
+PWM in the tunnel's fan order. ``make_design(spec, fans, u_min, u_max)`` builds one from
+
+* ``lhs:N``: N sweeps, the first and last with every fan off (a background or dead band shows
+  there), the rest a Latin hypercube over [u_min, u_max] (each fan spread evenly, independently
+  of the others: what the diagnosis needs to tell the fans' effects apart);
+* ``single-off``: every fan at the middle of the range, then each enabled fan off in turn;
+* a CSV file (header: ``label`` (optional) then the fan names, in any order; one row per sweep) or
+  a YAML file (``design: [{label: ..., pwm: {FAN: value, ...}}, ...]``).
+
+Every design is validated the same way: the fans must be exactly the tunnel's, every command a
+finite number within [u_min, u_max] or exactly 0 (off), disabled fans at 0. A bad design is refused whole with
+``DesignError`` naming the sweep, the fan and the value, and what to do; nothing is half-used.
+``write_design`` saves a design as CSV (what ``make_design`` reads back).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..core.geometry import FanArray
+from .data import design_commands
+from .errors import WorkbenchError
+
+__all__ = ['Design', 'DesignError', 'make_design', 'write_design']
+
+
+class DesignError(WorkbenchError, ValueError):
+    """A design that cannot be run: the message says what is wrong and what to do."""
+
+
+@dataclass(frozen=True)
+class Design:
+    """commands (S, n_fans) [fraction 0..1, fan order of ``fan_names``]; labels (S,); source: the
+    spec it came from."""
+
+    fan_names: tuple
+    commands: np.ndarray
+    labels: tuple
+    source: str
+
+    def __len__(self) -> int:
+        return len(self.commands)
+
+    def spread(self, enabled) -> float:
+        """The median over the enabled fans of the interquartile range of each fan's command
+        (what ``SweepSet.command_spread`` measures on recorded sweeps) [fraction]."""
+        U = self.commands[:, np.asarray(enabled, bool)]
+        if len(U) < 2 or U.shape[1] == 0:
+            return 0.0
+        q75, q25 = np.percentile(U, [75, 25], axis=0)
+        return float(np.median(q75 - q25))
+
+
+def _checked(names, commands, labels, fans: FanArray, u_min: float, u_max: float, source: str) -> Design:
+    commands = np.asarray(commands, dtype=float)
+    if commands.ndim != 2 or len(commands) == 0:
+        raise DesignError(f'{source}: the design has no sweeps; give at least one row of commands')
+    want = list(fans.names)
+    missing, unknown = sorted(set(want) - set(names)), sorted(set(names) - set(want))
+    if missing or unknown or len(names) != len(set(names)):
+        raise DesignError(f'{source}: the design\'s fans {list(names)} are not the tunnel\'s {want}'
+                          + (f' (missing: {missing})' if missing else '')
+                          + (f' (unknown: {unknown})' if unknown else '')
+                          + '; write one column per fan of tunnel.yaml')
+    order = [list(names).index(n) for n in want]
+    commands = commands[:, order]
+    for i, row in enumerate(commands):
+        for j, u in enumerate(row):
+            where = f'{source}: sweep {labels[i]!r}, fan {want[j]}'
+            if not np.isfinite(u):
+                raise DesignError(f'{where}: the command {u!r} is not a number; write a fraction 0..1')
+            if not fans.enabled[j] and u != 0:
+                raise DesignError(f'{where}: the fan is disabled in tunnel.yaml but commanded {u:g}; '
+                                  f'write 0 or enable it')
+            if fans.enabled[j] and u != 0 and not (u_min - 1e-12 <= u <= u_max + 1e-12):
+                raise DesignError(f'{where}: the command {u:g} lies outside the configured range '
+                                  f'[{u_min:g}, {u_max:g}] (shaping.yaml u_min/u_max); the fans '
+                                  f'never receive it: change the design or the range')
+    return Design(tuple(want), commands, tuple(labels), source)
+
+
+def _read_csv(path: Path):
+    try:
+        with open(path, newline='', encoding='utf-8') as stream:
+            rows = [r for r in csv.reader(stream) if r and any(c.strip() for c in r)]
+    except OSError as exc:
+        raise DesignError(f'cannot read the design {path}: {exc.strerror or exc}') from None
+    if not rows:
+        raise DesignError(f'{path}: empty; write a header (label, then the fan names) and one row per sweep')
+    header = [c.strip() for c in rows[0]]
+    has_label = header[0].lower() == 'label'
+    names = header[1:] if has_label else header
+    labels, commands = [], []
+    for k, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise DesignError(f'{path}, line {k}: {len(row)} values for {len(header)} columns')
+        cells = row[1:] if has_label else row
+        try:
+            commands.append([float(c) for c in cells])
+        except ValueError:
+            raise DesignError(f'{path}, line {k}: {cells} holds something that is not a number') from None
+        labels.append(row[0].strip() if has_label else f'sweep {k - 1}')
+    return names, np.array(commands, dtype=float).reshape(len(commands), len(names)), labels
+
+
+def _read_yaml(path: Path):
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise DesignError(f'cannot read the design {path}: {exc}') from None
+    sweeps = doc.get('design') if isinstance(doc, dict) else None
+    if not isinstance(sweeps, list) or not all(isinstance(s, dict) and isinstance(s.get('pwm'), dict)
+                                               for s in sweeps):
+        raise DesignError(f'{path}: write `design:` as a list of sweeps, each '
+                          f'{{label: ..., pwm: {{FAN: fraction, ...}}}}')
+    names = list(sweeps[0]['pwm']) if sweeps else []
+    for i, s in enumerate(sweeps):
+        if set(s['pwm']) != set(names):
+            raise DesignError(f'{path}: sweep {i + 1} names fans {sorted(s["pwm"])}, the first names '
+                              f'{sorted(names)}; every sweep must name the same fans')
+    try:
+        commands = np.array([[float(s['pwm'][n]) for n in names] for s in sweeps], dtype=float)
+    except (TypeError, ValueError):
+        raise DesignError(f'{path}: every pwm value must be a number (a fraction 0..1)') from None
+    labels = [str(s.get('label', f'sweep {i + 1}')) for i, s in enumerate(sweeps)]
+    return names, commands.reshape(len(sweeps), len(names)), labels
+
+
+def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: int = 0) -> Design:
+    """The design of ``spec`` (see the module docstring) for ``fans``, within [u_min, u_max]."""
+    spec = str(spec).strip()
+    n = fans.n_fans
+    if spec.startswith('lhs:'):
+        try:
+            count = int(spec[4:])
+        except ValueError:
+            count = 0
+        if count < 3:
+            raise DesignError(f'{spec!r}: write lhs:N with N >= 3 sweeps (the first and last are '
+                              f'fans off); the diagnosis wants 8-12')
+        inner = design_commands(n, count - 2, low=u_min, high=u_max, seed=seed, enabled=fans.enabled)
+        commands = np.vstack([np.zeros(n), inner, np.zeros(n)])
+        labels = ['fans off'] + [f'lhs {i + 1}' for i in range(count - 2)] + ['fans off again']
+        return _checked(list(fans.names), commands, labels, fans, u_min, u_max, spec)
+    if spec == 'single-off':
+        mid = 0.5 * (u_min + u_max)
+        rows, labels = [np.where(fans.enabled, mid, 0.0)], ['all at the middle']
+        for j in np.flatnonzero(fans.enabled):
+            row = rows[0].copy()
+            row[j] = 0.0
+            rows.append(row)
+            labels.append(f'{fans.names[j]} off')
+        return _checked(list(fans.names), np.array(rows), labels, fans, u_min, u_max, spec)
+    path = Path(spec)
+    if path.suffix.lower() == '.csv':
+        names, commands, labels = _read_csv(path)
+    elif path.suffix.lower() in ('.yaml', '.yml'):
+        names, commands, labels = _read_yaml(path)
+    else:
+        raise DesignError(f'unknown design {spec!r}: give lhs:N, single-off, or a .csv or .yaml file')
+    return _checked(names, commands, labels, fans, u_min, u_max, str(path))
+
+
+def write_design(path, design: Design) -> Path:
+    """Save ``design`` as CSV: label, then one column per fan [fraction]; exact floats."""
+    path = Path(path)
+    with open(path, 'w', newline='', encoding='utf-8') as stream:
+        writer = csv.writer(stream)
+        writer.writerow(['label', *design.fan_names])
+        for label, row in zip(design.labels, design.commands):
+            writer.writerow([label, *(repr(float(u)) for u in row)])
+    return path
