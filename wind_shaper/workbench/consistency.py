@@ -113,6 +113,11 @@ def _signal(with_effect: Term, without: Term, data: FitData) -> np.ndarray:
     return np.array([np.sqrt(np.mean(diff[data.sweep == s] ** 2)) for s in np.unique(data.sweep)])
 
 
+def _shows_effect(signal: np.ndarray, min_signal: float) -> np.ndarray:
+    """The sweeps whose signal [N] is at least ``min_signal`` and a quarter of the median."""
+    return signal >= max(min_signal, 0.25 * float(np.median(signal)))
+
+
 def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, heldout,
                         previous: Term, *, tolerance: float = 0.1, max_z: float = 3.0,
                         max_disagree: float = 0.25, min_p: float = 1e-3,
@@ -126,7 +131,7 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
 
     sweeps = np.unique(train.sweep)
     signal = _signal(model, previous, train)
-    informative = signal >= max(min_signal, 0.25 * float(np.median(signal)))
+    informative = _shows_effect(signal, min_signal)
     values = np.full((len(sweeps), len(names)), np.nan)
     stds = np.full_like(values, np.nan)
     free = np.zeros(len(model.theta), bool)
@@ -155,7 +160,7 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
     pred_new, pred_old = model(data.U, data.Z), previous(data.U, data.Z)
     h_sweeps = np.unique(data.sweep)
     h_signal = _signal(model, previous, data)
-    h_informative = h_signal >= max(min_signal, 0.25 * float(np.median(h_signal)))
+    h_informative = _shows_effect(h_signal, min_signal)
     better = np.array([np.mean((pred_new[data.sweep == s] - data.y[data.sweep == s]) ** 2)
                        < np.mean((pred_old[data.sweep == s] - data.y[data.sweep == s]) ** 2)
                        for s in h_sweeps])
