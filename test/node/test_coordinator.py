@@ -357,7 +357,7 @@ def test_second_call_is_refused_and_cancel_keeps_the_commands(graph, fault_row):
     assert graph.coordinator._run.k == 1
     np.testing.assert_array_equal(graph.rig.commands[-1], first.pwm_after)
     nothing = graph.call(graph.cancel, Trigger.Request())
-    assert not nothing.success and 'no iteration is running' in nothing.message
+    assert not nothing.success and 'no iteration or experiment is running' in nothing.message
     fault_row('a second run_iteration call while one runs',
               'refused, never interleaved; cancel keeps the last completed commands', True)
 
@@ -548,7 +548,7 @@ def test_cli_iterate_status_and_cancel(graph, capsys, paper_config):
     out = capsys.readouterr().out
     assert 'coordinator: done, iteration 1' in out and 'target: parabolic' in out
     assert cli(['cancel']) == 1
-    assert 'no iteration is running' in capsys.readouterr().err
+    assert 'no iteration or experiment is running' in capsys.readouterr().err
     assert cli(['iterate', '--target', 'gaussian@NOPE']) == 1
     assert 'NOPE' in capsys.readouterr().err
     assert graph.store().last_completed() == 1

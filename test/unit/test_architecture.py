@@ -15,7 +15,7 @@ PACKAGE_DIR = Path(wind_shaper.__file__).parent
 #: or from a part of a lower layer (two parts on one layer do not import each other).
 LAYERS = {
     'core': 0,
-    'protocols': 1, 'model': 1, 'estimation': 1,
+    'protocols': 1, 'model': 1, 'estimation': 1, 'experiment': 1,
     'control': 2,
     'storage': 3, 'sim': 3, 'io': 3, 'report': 3, 'ros': 3, 'supervisor': 3,
     'bag': 4,
@@ -23,7 +23,7 @@ LAYERS = {
     'nodes': 6, 'cli': 6,
 }
 #: Parts that must run without ROS (the nodes and the CLI translate between them and ROS).
-PURE = {'core', 'protocols', 'model', 'estimation', 'control', 'storage', 'sim', 'io', 'report',
+PURE = {'core', 'experiment', 'protocols', 'model', 'estimation', 'control', 'storage', 'sim', 'io', 'report',
         'workbench', 'coordination', 'app'}
 ROS_MODULES = ('rclpy', 'wind_shaper_msgs', 'std_msgs', 'geometry_msgs', 'sensor_msgs',
                'std_srvs', 'diagnostic_msgs', 'visualization_msgs', 'builtin_interfaces')

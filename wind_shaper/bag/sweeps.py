@@ -6,7 +6,9 @@ pose (``PoseStamped``, tunnel frame, x/y [m]) streams are cut into sweeps by the
 ``IterationStatus`` (state 'sweeping' of iteration k) or, without status, by fan-command
 changes (``wind_shaper.bag.segments``); inside a sweep, force and pose are paired by their
 header stamps [s] exactly as the field estimator pairs them (``wind_shaper.estimation.align``: one
-pair per pose, mean force over +-half a pose period).
+pair per pose, mean force over +-half a pose period). The stored sweeps of a designed experiment
+(``wind-shaper collect``) are in the bag as they are in the experiment folder: one
+``SweepSamples`` per stored row on /wind_shaper/experiment/sweeps, read as they are.
 """
 from __future__ import annotations
 
@@ -61,8 +63,8 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
 
     segment_by: 'status' (IterationStatus 'sweeping' intervals), 'commands' (intervals of
     constant FanCommand on /wind_shaper/fans/command, else /wind_shaper/fans/applied), 'whole'
-    (the whole bag is one sweep), or 'auto' (status if the bag has any, else commands, else
-    whole). include_incomplete: keep a sweep the recording cut short. Raises a BagError if the
+    (the whole bag is one sweep), or 'auto' (an experiment's stored rows as recorded, and the
+    status intervals if the bag has any, else commands unless it holds experiment rows). include_incomplete: keep a sweep the recording cut short. Raises a BagError if the
     bag is missing, damaged, or lacks the force / pose topics. A sweep interval whose streams
     cannot be paired (no force or pose in it, clocks out of step) is skipped with a warning, or
     raises the core's SweepError when ``strict``.
@@ -86,12 +88,16 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
                               and topics[t].msgtype == types.FAN_COMMAND), None)
         status_topic = (names.STATUS if topics.get(names.STATUS) and topics[names.STATUS].count
                         and topics[names.STATUS].msgtype == types.ITERATION_STATUS else None)
+        rows_topic = (names.EXPERIMENT_SWEEPS if topics.get(names.EXPERIMENT_SWEEPS)
+                      and topics[names.EXPERIMENT_SWEEPS].count
+                      and topics[names.EXPERIMENT_SWEEPS].msgtype == types.SWEEP_SAMPLES else None)
+        rows: list[SweepRecord] = []
 
         force_recv, force_t, force_z = [], [], []
         pose_recv, pose_t, pose_xy = [], [], []
         statuses: list[seg.StatusEvent] = []
         commands: list[seg.CommandEvent] = []
-        wanted = [force_topic, pose_topic] + [t for t in (status_topic, command_topic) if t]
+        wanted = [force_topic, pose_topic] + [t for t in (status_topic, command_topic, rows_topic) if t]
         first_ns = last_ns = None
         for topic, t_ns, msg in bag.decoded(wanted):
             first_ns = t_ns if first_ns is None else first_ns
@@ -104,6 +110,8 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
                 pose_recv.append(t_ns)
                 pose_t.append(_stamp_s(msg.header))
                 pose_xy.append((msg.pose.position.x, msg.pose.position.y))
+            elif topic == rows_topic:
+                rows.append(_experiment_row(msg, t_ns))
             elif topic == status_topic:
                 statuses.append(seg.StatusEvent(t_ns, int(msg.iteration), str(msg.state),
                                                 tuple(msg.fan_names), tuple(float(u) for u in msg.pwm)))
@@ -112,8 +120,11 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
 
     mode = segment_by
     if mode == 'auto':
-        mode = 'status' if statuses else 'commands'
-    if mode == 'status':
+        # an experiment's stored rows are its sweeps: its command changes are no others
+        mode = 'status' if statuses else ('rows' if rows else 'commands')
+    if mode == 'rows':
+        parts = []
+    elif mode == 'status':
         if not statuses:
             raise BagContentError(f'bag {bag_path} has no {names.STATUS} messages to find the sweeps '
                                   f"by: use segment_by='commands' or 'whole'")
@@ -146,7 +157,18 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
             continue
         records.append(SweepRecord(sweep, part.iteration, part.fan_names, part.start_ns, part.end_ns,
                                    int(f.sum()), int(p.sum()), part.complete, part.source))
+    if segment_by == 'auto':
+        records = sorted(records + rows, key=lambda r: r.start_ns)
     return records
+
+
+def _experiment_row(msg, t_ns: int) -> SweepRecord:
+    """A stored row of an experiment (SweepSamples, iteration = the row) as a record."""
+    n = len(msg.t)
+    sweep = Sweep(np.column_stack([np.asarray(msg.x, float), np.asarray(msg.y, float)]).reshape(-1, 2),
+                  np.asarray(msg.force, float), np.asarray(msg.t, float), np.asarray(msg.pwm, float))
+    return SweepRecord(sweep, int(msg.iteration), tuple(msg.fan_names), int(t_ns), int(t_ns), n, n,
+                       True, 'experiment')
 
 
 def read_sweeps(bag_path: Path | str, **options) -> list[Sweep]:

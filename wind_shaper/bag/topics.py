@@ -75,6 +75,8 @@ SWEEP_TOPICS: dict[str, TopicSpec] = {spec.name: spec for spec in (
     TopicSpec(names.FAN_APPLIED, types.FAN_COMMAND, LATCHED),
     TopicSpec(names.FIELD, types.FIELD_ESTIMATE, LATCHED),
     TopicSpec(names.STATUS, types.ITERATION_STATUS, LATCHED),
+    TopicSpec(names.EXPERIMENT_STATUS, types.EXPERIMENT_STATUS, LATCHED),
+    TopicSpec(names.EXPERIMENT_SWEEPS, types.SWEEP_SAMPLES, COMMAND),
 )}
 
 #: Other graph topics the recorder and player know the type of.

@@ -24,6 +24,7 @@ DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 FAN_COMMAND = 'wind_shaper_msgs/msg/FanCommand'
 FIELD_ESTIMATE = 'wind_shaper_msgs/msg/FieldEstimate'
 ITERATION_STATUS = 'wind_shaper_msgs/msg/IterationStatus'
+EXPERIMENT_STATUS = 'wind_shaper_msgs/msg/ExperimentStatus'
 SWEEP_SAMPLES = 'wind_shaper_msgs/msg/SweepSamples'
 
 _SOURCE_MSG_DIR = Path(__file__).resolve().parents[2] / 'msg_defs' / 'msg'

@@ -155,9 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Modules with a ``register(subparsers)`` adding graph commands: up (graph.py), iterate /
-#: status / cancel (service.py), record / replay (bag.py).
-_GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_shaper.cli.bag',
-                   'wind_shaper.cli.model')
+#: status / cancel (service.py), collect (collect.py), record / replay (bag.py).
+_GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_shaper.cli.collect',
+                   'wind_shaper.cli.bag', 'wind_shaper.cli.model')
 
 
 def main(argv=None) -> int:

@@ -1,13 +1,17 @@
 """The coordinator's logic without ROS: a shaping run and its iteration state machine.
 
 ``iteration``: ``ShapingRun`` (run folder, prior, target, commands in force, history) and
-``run_iteration`` (commanding -> sweeping -> estimating -> updating over ``RigPorts``). The
+``run_iteration`` (commanding -> sweeping -> estimating -> updating over ``RigPorts``).
+``experiment``: ``Experiment`` (a checked design and its folder) and ``run_experiment`` (each
+row: commanding -> sweeping -> checking -> stored or flagged, over the same ports). The
 coordinator node (``wind_shaper.nodes.coordinator``) only wires these to topics and services.
 """
+from .experiment import (CHECKING, Experiment, ExperimentPorts, RowResult, run_experiment)
 from .iteration import (CANCELLED, COMMANDING, DONE, ESTIMATING, FAILED, IDLE, PROGRESS, SWEEPING,
                         UPDATING, FanWatch, FieldAnswer, IterationStopped,
                         RigPorts, ShapingRun, past_iteration, run_iteration)
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',
            'CANCELLED', 'PROGRESS', 'IterationStopped', 'FieldAnswer', 'RigPorts', 'FanWatch',
-           'ShapingRun', 'past_iteration', 'run_iteration']
+           'ShapingRun', 'past_iteration', 'run_iteration', 'CHECKING', 'Experiment',
+           'ExperimentPorts', 'RowResult', 'run_experiment']

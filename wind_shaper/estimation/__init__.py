@@ -2,9 +2,11 @@
 
 ``align``: force (about 1 kHz) and pose (about 100 Hz) streams -> time-aligned sweep pairs.
 ``frames``: rigid transforms, quaternions and the mocap relay's plate-centre gate.
+``coverage``: the key points a moving plate has passed (live feedback, the re-sweep flag).
 ``field``: GET_CLOSEST subsampling and the Gaussian-process field (mean and std at any point).
 Positions [m, tunnel frame], forces [N], times [s].
 """
+from .coverage import Coverage, coverage_share
 from .align import MIN_OVERLAP, SampleBuffer, align_sweep, pose_period
 from .field import (FieldEstimate, FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
                     Subsample, closest_samples, fit_hyperparameters, get_closest)
@@ -13,7 +15,7 @@ from .frames import (PlateRelay, RelayResult, RelayStats, RigidTransform, Verdic
                      quat_to_yaw)
 
 __all__ = [
-    'align_sweep', 'pose_period', 'SampleBuffer', 'MIN_OVERLAP',
+    'Coverage', 'coverage_share', 'align_sweep', 'pose_period', 'SampleBuffer', 'MIN_OVERLAP',
     'FieldEstimate', 'FieldEstimator', 'GaussianProcessField', 'LocalGaussianProcessField',
     'Subsample', 'closest_samples', 'get_closest', 'fit_hyperparameters',
     'RigidTransform', 'PlateRelay', 'RelayResult', 'RelayStats', 'Verdict', 'quat_normalize',

@@ -50,6 +50,7 @@ from ..ros.convert import estimate_from_msg, fan_command, pwm_from_command, swee
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 from ..ros.waiting import Waits
+from .collect_service import CollectService
 
 STATUS_HZ = 2.0  # status rate while an iteration runs [Hz]
 
@@ -94,15 +95,17 @@ class CoordinatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(names.COORDINATOR, **kwargs)
         self.params = p = declare_parameters(self, CoordinatorParams)
-        self._setup = Setup.load(p.config_dir or None)
-        self._run = run_ = ShapingRun.open(self._setup, p.run_root, p.run_name, p.target,
+        self.setup = Setup.load(p.config_dir or None)
+        self._run = run_ = ShapingRun.open(self.setup, p.run_root, p.run_name, p.target,
                                            {'coordinator': asdict(p)})
         for level, note in run_.notes:
             (self.get_logger().warning if level == 'warning' else self.get_logger().info)(note)
-        self._fan_names = run_.fan_names
+        self.fan_names = self._fan_names = run_.fan_names
 
-        self._lock = threading.Lock()
+        self.lock = self._lock = threading.Lock()
         self._running = False
+        self._held: np.ndarray | None = None   # commands an experiment holds (then: off)
+        self.sweep_duration_s = p.sweep_duration_s  # of the procedure running [s]
         self._applied: np.ndarray | None = None
         self._state = IterationStatus.STATE_IDLE
         self._message = ''
@@ -115,7 +118,7 @@ class CoordinatorNode(Node):
         self._fan_watch: FanWatch | None = None
         self._applied_at: float | None = None   # time.monotonic() of the last read-back
 
-        self._cb = ReentrantCallbackGroup()
+        self.callback_group = self._cb = ReentrantCallbackGroup()
         self._waits = Waits(self, self._cb, IterationStopped, describe=lambda: self._state,
                             procedure='the iteration')
         self._cmd_pub = self.create_publisher(FanCommand, names.FAN_COMMAND, qos.LATCHED)
@@ -135,6 +138,7 @@ class CoordinatorNode(Node):
         self.create_service(Trigger, names.CANCEL_ITERATION, self._handle_cancel_iteration,
                             callback_group=self._cb)
         self.create_service(SetModel, names.SET_MODEL, self._handle_set_model, callback_group=self._cb)
+        self._collect = CollectService(self)
         self.create_timer(1.0 / p.republish_hz, self._publish_command, callback_group=self._cb)
         self.create_timer(1.0 / STATUS_HZ, self._on_status_timer, callback_group=self._cb)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=self._cb)
@@ -163,14 +167,29 @@ class CoordinatorNode(Node):
     def _on_plate_pose(self, msg: PoseStamped) -> None:
         if self._counting:
             self._samples += 1
+            if self._collect.active:
+                self._collect.on_pose(msg.pose.position.x, msg.pose.position.y)
+
+    def command_in_force(self) -> np.ndarray | None:
+        """What the fans are told now: an experiment's row (or off after one), else the run's."""
+        return self._held if self._held is not None else self._run.command
+
+    def hold(self, U) -> None:
+        """Hold the commands ``U`` (an experiment's row, or off after it) until an iteration
+        begins, and publish them at once."""
+        self._held = np.asarray(U, dtype=float).copy()
+        self._publish_command()
 
     def _publish_command(self) -> None:
-        U = self._run.command
+        U = self.command_in_force()
         if U is not None:
             self._cmd_pub.publish(fan_command(self._fan_names, U, self.get_clock().now().to_msg()))
 
     # -- status ---------------------------------------------------------------------------------------
     def set_state(self, state: str, message: str = '') -> None:
+        if self._collect.active:  # the experiment's feedback, not the iteration's status
+            self._collect.set_state(state, message)
+            return
         with self._lock:
             self._state, self._message = state, message
             self._phase_start = time.monotonic()
@@ -183,7 +202,9 @@ class CoordinatorNode(Node):
         self.get_logger().warning(message)
 
     def _on_status_timer(self) -> None:
-        if self._running:
+        if self._collect.active:
+            self._collect.publish()
+        elif self._running:
             self._publish_status()
 
     def _publish_status(self) -> None:
@@ -191,10 +212,11 @@ class CoordinatorNode(Node):
         with self._lock:
             progress = self._progress
             if self._state == IterationStatus.STATE_SWEEPING and self._running:
-                frac = (time.monotonic() - self._phase_start) / self.params.sweep_duration_s
+                frac = (time.monotonic() - self._phase_start) / self.sweep_duration_s
                 span = PROGRESS['estimating'] - PROGRESS['sweeping']
                 progress = PROGRESS['sweeping'] + span * min(max(frac, 0.0), 0.99)
-            U = run_.command if run_.command is not None else run_.U
+            U = self.command_in_force()
+            U = U if U is not None else run_.U
             msg = IterationStatus(
                 iteration=int(self._status_k), state=self._state,
                 progress=float(progress), samples=int(self._samples), message=self._message,
@@ -205,11 +227,12 @@ class CoordinatorNode(Node):
         self._status_pub.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        run_ = self._run
-        values = {'state': self._state, 'next_iteration': run_.k, 'target': run_.target_spec,
+        run_, U = self._run, self.command_in_force()
+        values = {'state': 'collecting' if self._collect.active else self._state,
+                  'next_iteration': run_.k, 'target': run_.target_spec,
                   'rmse_N': run_.last_rmse, 'run_folder': str(run_.store.folder),
-                  'commands': 'none yet' if run_.command is None
-                  else ' '.join(f'{n}={u:.4f}' for n, u in zip(self._fan_names, run_.command)),
+                  'commands': 'none yet' if U is None
+                  else ' '.join(f'{n}={u:.4f}' for n, u in zip(self._fan_names, U)),
                   'prior': repr(run_.model)}
         message = f'{self._state}: {self._message}' if self._message else self._state
         self._diag_pub.publish(diag.array(self, diag.status(
@@ -255,7 +278,7 @@ class CoordinatorNode(Node):
     async def sweep(self, k: int, attempt: int) -> None:
         """Move the plate once (sweep service) or give an operator the sweep's duration; a sweep
         during which the fans left their commands (or stopped reporting) is refused."""
-        self._fan_watch = watch = FanWatch(time.monotonic(), self._run.command,
+        self._fan_watch = watch = FanWatch(time.monotonic(), self.command_in_force(),
                                            self.params.apply_tolerance)
         with self._lock:
             self._counting = True
@@ -267,30 +290,34 @@ class CoordinatorNode(Node):
                 self._counting = False
         problem = watch.problem(time.monotonic(), self.params.readback_timeout_s, self._fan_names)
         if problem:
+            stays = (f'the rows stored so far stay: check the fans, then call {names.COLLECT} '
+                     f'again with the same design' if self._collect.active else
+                     f'the run stays at iteration {k}: check the fans, then call '
+                     f'{names.RUN_ITERATION} again')
             raise IterationStopped(
                 IterationStatus.STATE_FAILED,
                 f'sweep discarded: {problem} (fan_output restarted, the autopilot link dropped, '
-                f'or an emergency stop?); the run stays at iteration {k}: check the fans, then '
-                f'call {names.RUN_ITERATION} again')
+                f'or an emergency stop?); {stays}')
 
     async def _move_plate(self, k: int, attempt: int) -> None:
-        p = self.params
+        p, duration = self.params, self.sweep_duration_s
+        doing = self._collect.where(k) if self._collect.active else f'iteration {k}'
         again = '' if attempt == 1 else f' (sweep {attempt} of {p.max_sweeps})'
         if self._sweep_client is not None:
             self.set_state(IterationStatus.STATE_SWEEPING,
-                           f'iteration {k}: sweeping for {p.sweep_duration_s:g} s{again}')
+                           f'{doing}: sweeping for {duration:g} s{again}')
             moved = await self._call(self._sweep_client,
-                                     Sweep.Request(duration_s=p.sweep_duration_s, seed=0),
+                                     Sweep.Request(duration_s=duration, seed=0),
                                      'the sweep (sim_tunnel or motion stage)',
-                                     p.sweep_duration_s + p.service_timeout_s)
+                                     duration + p.service_timeout_s)
             if not moved.success:
                 raise IterationStopped(IterationStatus.STATE_FAILED,
                                        f'the sweep failed: {moved.message}')
         else:
             self.set_state(IterationStatus.STATE_SWEEPING,
-                           f'iteration {k}: move the plate over the whole area now '
-                           f'({p.sweep_duration_s:g} s){again}')
-            await self._waits.wait(None, self._waits.remaining(p.sweep_duration_s))
+                           f'{doing}: move the plate over the whole area now '
+                           f'({duration:g} s){again}')
+            await self._waits.wait(None, self._waits.remaining(duration))
             self.check_boundary()
 
     async def _call(self, client, request, what: str, timeout_s: float, *, resend: bool = False):
@@ -302,8 +329,9 @@ class CoordinatorNode(Node):
             self._estimate_client,
             EstimateField.Request(iteration=k, fan_names=self._fan_names, pwm=[float(u) for u in U]),
             'field_estimator', self.params.service_timeout_s, resend=True)
-        if not answer.success:
-            return FieldAnswer(False, answer.message)
+        if not answer.success:  # a refused sweep's pairs come along when they could be paired
+            refused = sweep_from_msg(answer.samples) if len(answer.samples.t) else None
+            return FieldAnswer(False, answer.message, sweep=refused)
         kp, mean, std = estimate_from_msg(answer.estimate)
         return FieldAnswer(True, answer.message, kp, mean, std, sweep_from_msg(answer.samples),
                            int(answer.estimate.n_used), float(answer.compute_s))
@@ -316,11 +344,11 @@ class CoordinatorNode(Node):
         response.run_folder = str(run_.store.folder)
         response.rmse_before = response.rmse_predicted_after = response.max_std = math.nan
         with self._lock:
-            if self._running:
+            busy = self.busy()
+            if busy:
                 response.success = False
                 response.iteration = run_.k
-                response.message = (f'an iteration is running (k={run_.k}, {self._state}): wait '
-                                    f'for it or call {names.CANCEL_ITERATION}')
+                response.message = busy
                 return response
             try:
                 target, rule = run_.prepare(request.target, request.step_gain)
@@ -330,9 +358,9 @@ class CoordinatorNode(Node):
                 response.message = (f'refused, nothing changed (the run keeps target '
                                     f'{run_.target_spec!r}): {exc}')
                 return response
-            self._running = True
-            self._waits.start(request.timeout_s if request.timeout_s > 0
-                              else self.params.iteration_timeout_s)
+            self.begin_procedure(0.0, request.timeout_s if request.timeout_s > 0
+                                 else self.params.iteration_timeout_s)
+            self._held = None   # the run's commands again, after an experiment held its own
         try:
             spec = request.target.strip()
             if target is not None:
@@ -345,9 +373,35 @@ class CoordinatorNode(Node):
             self.get_logger().error(f'iteration {run_.k} failed unexpectedly: {exc!r}')
             return self._end(response, IterationStatus.STATE_FAILED, f'unexpected error: {exc!r}')
         finally:
-            with self._lock:
-                self._running = False
-                self._counting = False
+            self.end_procedure()
+
+    # -- one procedure at a time: an iteration or an experiment ------------------------------------------
+    def busy(self) -> str:
+        """'' when idle, else why a new request must wait (call with ``lock`` held)."""
+        if not self._running:
+            return ''
+        if self._collect.active:
+            return (f'an experiment is running ({self._collect.status_text()}): wait for it or '
+                    f'call {names.CANCEL_ITERATION}')
+        return (f'an iteration is running (k={self._run.k}, {self._state}): wait for it or call '
+                f'{names.CANCEL_ITERATION}')
+
+    def begin_procedure(self, sweep_duration_s: float, timeout_s: float) -> None:
+        """Mark a procedure running (call with ``lock`` held): its sweeps last
+        ``sweep_duration_s`` (<= 0: the parameter) and it ends by ``timeout_s`` [s] from now."""
+        self._running = True
+        self.sweep_duration_s = (sweep_duration_s if sweep_duration_s > 0
+                                 else self.params.sweep_duration_s)
+        self._waits.start(timeout_s)
+
+    def end_procedure(self) -> None:
+        with self._lock:
+            self._running = False
+            self._counting = False
+
+    def snapshot(self) -> dict:
+        """The parameters, for the record of a run or an experiment."""
+        return asdict(self.params)
 
     async def _iterate(self, rule, response):
         run_ = self._run
@@ -392,13 +446,17 @@ class CoordinatorNode(Node):
         with self._lock:
             if not self._running:
                 response.success = False
-                response.message = f'no iteration is running (state {self._state})'
+                response.message = f'no iteration or experiment is running (state {self._state})'
                 return response
             k, state = self._run.k, self._state
+            collecting = self._collect.active
         self._waits.cancel()
         response.success = True
-        response.message = (f'cancelling iteration {k} ({state}) at the next step boundary; the fans '
-                            f'keep the last completed iteration\'s commands')
+        response.message = (
+            f'cancelling the experiment ({self._collect.status_text()}) at the next step boundary; '
+            f'the sweeps stored so far stay and the fans go off' if collecting else
+            f'cancelling iteration {k} ({state}) at the next step boundary; the fans keep the last '
+            f'completed iteration\'s commands')
         self.get_logger().info(response.message)
         return response
 

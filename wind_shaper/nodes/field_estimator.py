@@ -11,7 +11,8 @@ key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/fie
 and returns it with the raw pairs (``SweepSamples``). An estimate that fails (no samples, streams
 out of step, poor coverage) answers ``success: false`` with the reason and changes nothing: the
 buffers are kept and collection goes on if it was on, so the plate can sweep on and the
-coordinator can ask again. /diagnostics at 1 Hz.
+coordinator can ask again; when the streams could be paired, the refused sweep's pairs come back
+in ``samples`` (an experiment keeps a flagged sweep). /diagnostics at 1 Hz.
 
 Every sample collected is also appended to the sweep journal (``journal_dir``,
 ``wind_shaper.storage.journal``) as it arrives. A field_estimator killed during a sweep and started
@@ -147,6 +148,7 @@ class FieldEstimatorNode(Node):
             self._collecting = False
             force_t, force = self._force.arrays()
             pose_t, pose_x, pose_y = self._pose.arrays()
+        sweep, t_start = None, 0.0
         try:
             if not was_collecting and len(force_t) == 0 and len(pose_t) == 0:
                 raise WindShaperError('no sweep was collected: call begin_sweep, move the plate, '
@@ -167,6 +169,9 @@ class FieldEstimatorNode(Node):
             self.get_logger().warning(message)
             response.success = False
             response.message = message
+            if sweep is not None:  # the pairs of a refused sweep, so that they can be kept
+                response.samples = sweep_to_msg(sweep, request.iteration, list(request.fan_names),
+                                                stamp=seconds_to_stamp(t_start))
             return response
         names_ = list(request.fan_names)
         response.estimate = estimate_to_msg(est, request.iteration, names_, pwm, len(sweep),

@@ -33,7 +33,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from wind_shaper_msgs.srv import Sweep
 
-from ..app import Setup
+from ..app import Setup, hidden_effects
 from ..core.errors import ConfigError, WindShaperError
 from ..protocols.errors import ProtocolConfigError
 from ..protocols.mavlink_fans import FanChannel, FanChannelMap
@@ -64,6 +64,9 @@ def _clock_offset() -> float:
 class SimTunnelParams:
     config_dir: str = param('', 'folder holding tunnel.yaml and sim.yaml ("" = the shipped config)')
     seed: int = param(-1, 'simulator seed of sweeps and noise; -1 = the seed in sim.yaml', low=-1)
+    hidden: str = param('', "hidden effects switched on in the simulated tunnel, ';' between them, "
+                        "each EFFECT[:key=value,...] as `--hidden` takes it (e.g. "
+                        "'weak_fan:fan=HM2,gain=0.8'); '' = none")
     mavlink_port: int = param(14550, 'UDP port of the simulated autopilot on 127.0.0.1 '
                               '(0 = any free port)', low=0, high=65535)
     flavour: str = param('ardupilot_servo', 'autopilot flavour: ardupilot_servo, '
@@ -132,7 +135,8 @@ class SimTunnel(Node):
     def _start(self) -> None:
         self.params = p = declare_parameters(self, SimTunnelParams)
         setup = Setup.load(p.config_dir or None)
-        sim = setup.make_sim(seed=None if p.seed < 0 else p.seed)
+        effects = hidden_effects([e.strip() for e in p.hidden.split(';') if e.strip()])
+        sim = setup.make_sim(seed=None if p.seed < 0 else p.seed, effects=effects)
         self.fan_names = list(setup.geometry.fans.names)
         unknown = [n for n in p.fan_names if n not in self.fan_names]
         if unknown:

@@ -24,11 +24,14 @@ MOCAP_POSE = '/vrpn_mocap/plate/pose'            # geometry_msgs/PoseStamped, mo
 PLATE_POSE = '/wind_shaper/plate/pose'           # geometry_msgs/PoseStamped, tunnel frame, plate centre
 FIELD = '/wind_shaper/field'                     # wind_shaper_msgs/FieldEstimate
 STATUS = '/wind_shaper/iteration/status'         # wind_shaper_msgs/IterationStatus
+EXPERIMENT_STATUS = '/wind_shaper/experiment/status'  # wind_shaper_msgs/ExperimentStatus
+EXPERIMENT_SWEEPS = '/wind_shaper/experiment/sweeps'  # wind_shaper_msgs/SweepSamples: each stored row
 DIAGNOSTICS = '/diagnostics'                     # diagnostic_msgs/DiagnosticArray
 
 # Services
 RUN_ITERATION = '/wind_shaper/run_iteration'     # wind_shaper_msgs/RunIteration
-CANCEL_ITERATION = '/wind_shaper/cancel_iteration'  # std_srvs/Trigger
+CANCEL_ITERATION = '/wind_shaper/cancel_iteration'  # std_srvs/Trigger (an iteration or an experiment)
+COLLECT = '/wind_shaper/collect'                 # wind_shaper_msgs/Collect (a designed experiment)
 SET_MODEL = '/wind_shaper/set_model'             # wind_shaper_msgs/SetModel
 BEGIN_SWEEP = '/wind_shaper/field_estimator/begin_sweep'  # std_srvs/Trigger
 ESTIMATE_FIELD = '/wind_shaper/field_estimator/estimate'  # wind_shaper_msgs/EstimateField

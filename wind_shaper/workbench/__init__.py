@@ -8,8 +8,6 @@ effect it misses, add it, and watch the error fall.
 * the candidate-effect library (``Library``; terms in ``wind_shaper.model``) and the
   diagnosis (``Diagnosis``: screening, refits, forward selection, a guard against spurious
   findings, a check across sweeps before an effect is named, findings in plain words);
-* experiment designs (``make_design``: lhs:N, single-off or a file, checked against the fans'
-  range before any fan sees them);
 * the commissioned reference model (``commission``) the diagnosis measures changes against;
 * the closed loop on the simulator (``compare_closed_loop``) and reports (``Report``).
 
@@ -19,7 +17,6 @@ from .closed_loop import LoopComparison, compare_closed_loop
 from .data import (FitData, SweepSet, design_commands, from_bag, from_report, from_run_folder,
                    from_sim, load_sweeps)
 from .consistency import SweepCheck, check_across_sweeps
-from .design import Design, DesignError, make_design, write_design
 from .diagnose import Diagnosis, Trial, fit_mask
 from .errors import CandidateError, DataSourceError, FitError, WorkbenchError
 from .fitting import FitResult, Frozen, fit_model, jackknife_std
@@ -29,7 +26,7 @@ from .reference import COMMISSIONING_PLAN, Reference, commission, commission_on,
 from .residuals import ResidualAnalysis, analyse_residuals
 
 __all__ = [
-    'SweepCheck', 'check_across_sweeps', 'Design', 'DesignError', 'make_design', 'write_design',
+    'SweepCheck', 'check_across_sweeps',
     'SweepSet', 'FitData', 'design_commands', 'from_sim', 'from_bag', 'from_run_folder', 'from_report',
     'load_sweeps', 'fit_model', 'FitResult', 'Frozen', 'jackknife_std', 'HeldOut', 'Scores', 'scores',
     'evaluate', 'analyse_residuals', 'ResidualAnalysis', 'Candidate', 'Library', 'default_library',

@@ -7,8 +7,9 @@ A ``SweepSet`` is several sweeps of the force plate, each at its own fan command
   from ``design_commands``;
 * ``from_bag``: a rosbag2 recording of the node graph (``wind_shaper.bag.read_sweeps``);
 * ``from_run_folder``: the coordinator's run folder (``wind_shaper.storage.runstore.RunStore``);
+* ``from_experiment``: an experiment folder of ``wind-shaper collect`` (``storage.ExperimentStore``);
 * ``from_report``: the report folder of ``wind-shaper shape`` (``run.json`` + ``sweeps.npz``);
-* ``load_sweeps``: any of the three paths above, told apart by what the path holds.
+* ``load_sweeps``: any of the paths above, told apart by what the path holds.
 
 Held-out evaluation always splits by sweep (``SweepSet.split``): samples of one sweep share its
 turbulence and path, so splitting samples would grade a model on data it has in effect seen.
@@ -20,6 +21,7 @@ with the sweep each cell came from so that metrics can be given per sweep.
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -27,10 +29,11 @@ from typing import Sequence
 import numpy as np
 
 from ..core.tunnel import Measurements, Sweep
+from ..experiment.design import design_commands
 from .errors import DataSourceError
 
 __all__ = ['SweepSet', 'FitData', 'design_commands', 'from_sim', 'from_bag', 'from_run_folder',
-           'from_report', 'load_sweeps']
+           'from_experiment', 'from_report', 'load_sweeps']
 
 
 @dataclass(frozen=True)
@@ -211,22 +214,6 @@ class SweepSet:
 
 # -- sources ------------------------------------------------------------------------------------
 
-def design_commands(n_fans: int, n_sweeps: int, *, low: float = 0.0, high: float = 0.9,
-                    seed: int = 0, enabled: np.ndarray | None = None) -> np.ndarray:
-    """(n_sweeps, n_fans) commands [fraction] for a diagnostic data set: a Latin hypercube, so
-    every fan's commands spread evenly over [low, high] (dead band and saturation included) and
-    are uncorrelated with the other fans' (each fan's effect can be told apart). Disabled fans 0."""
-    if n_sweeps < 1 or not 0 <= low < high <= 1:
-        raise DataSourceError(f'design needs n_sweeps >= 1 and 0 <= low < high <= 1; got '
-                              f'{n_sweeps}, {low}, {high}')
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xD0E]))
-    levels = low + (high - low) * (np.arange(n_sweeps) + rng.uniform(0.2, 0.8, (n_fans, n_sweeps))) / n_sweeps
-    U = np.array([rng.permutation(row) for row in levels]).T
-    if enabled is not None:
-        U = U * np.asarray(enabled, dtype=bool)[None, :]
-    return U
-
-
 def from_sim(tunnel, commands: np.ndarray, *, n_samples: int = 1000, source: str | None = None) -> SweepSet:
     """Sweep ``tunnel`` (anything satisfying ``core.tunnel.Tunnel``) once at each row of
     ``commands`` (n_sweeps, n_fans) [fraction]; ``n_samples`` plate samples per sweep."""
@@ -261,7 +248,9 @@ def from_bag(bag_path, fan_names: Sequence[str] | None = None, **options) -> Swe
         if r.fan_names and tuple(r.fan_names) != names:
             raise DataSourceError(f'bag {bag_path} commands fans {list(r.fan_names)}, expected '
                                   f'{list(names)}: pass the tunnel config it was recorded with')
-    labels = tuple(f'bag k={r.iteration}' if r.iteration >= 0 else f'bag #{i}' for i, r in enumerate(records))
+    labels = tuple(f'bag row {r.iteration + 1}' if r.source == 'experiment' else
+                   f'bag k={r.iteration}' if r.iteration >= 0 else f'bag #{i}'
+                   for i, r in enumerate(records))
     return SweepSet(tuple(r.sweep for r in records), names, f'bag {bag_path}', labels)
 
 
@@ -284,6 +273,26 @@ def from_run_folder(folder) -> SweepSet:
                     tuple(f'run k={r.k}' for r in history))
 
 
+def from_experiment(folder) -> SweepSet:
+    """The stored sweeps of an experiment folder (``wind-shaper collect``; read through
+    ``storage.ExperimentStore``), in design order; rows flagged for a re-sweep or not swept yet
+    are left out, with a warning that names them."""
+    from ..storage import ExperimentStore
+    folder = Path(folder)
+    store = ExperimentStore.open(folder.parent, folder.name)
+    stored = store.stored()
+    if not stored:
+        raise DataSourceError(f'experiment {folder} has no stored sweep yet: run `wind-shaper '
+                              f'collect` with its design ({folder / "design.csv"})')
+    missing = [store.plan.labels[i] for i in store.pending()]
+    if missing:
+        warnings.warn(f'experiment {folder}: {len(missing)} of {len(store.plan)} sweeps are not '
+                      f'stored (flagged for a re-sweep or not swept yet: {", ".join(missing)}); '
+                      f'using the {len(stored)} stored ones', stacklevel=2)
+    return SweepSet(tuple(s.sweep for s in stored), tuple(store.plan.fan_names),
+                    f'experiment {folder}', tuple(f'{s.label} (row {s.index + 1})' for s in stored))
+
+
 def from_report(folder) -> SweepSet:
     """The sweeps a ``wind-shaper shape`` report folder kept (``run.json`` + ``sweeps.npz``)."""
     folder = Path(folder)
@@ -301,19 +310,21 @@ def from_report(folder) -> SweepSet:
 
 def load_sweeps(path, fan_names: Sequence[str] | None = None) -> SweepSet:
     """Sweeps from a bag (a folder with metadata.yaml, or an .mcap/.db3 file), a run folder
-    (run.yaml) or a shape report (run.json + sweeps.npz)."""
+    (run.yaml), an experiment folder (experiment.yaml) or a shape report (run.json + sweeps.npz)."""
     path = Path(path)
     if not path.exists():
         raise DataSourceError(f'{path} does not exist: give a bag, a run folder or a shape report')
     if path.is_dir() and (path / 'run.yaml').is_file():
         data = from_run_folder(path)
+    elif path.is_dir() and (path / 'experiment.yaml').is_file():
+        data = from_experiment(path)
     elif path.is_dir() and (path / 'sweeps.npz').is_file():
         data = from_report(path)
     elif (path.is_dir() and (path / 'metadata.yaml').is_file()) or path.suffix in ('.mcap', '.db3'):
         data = from_bag(path, fan_names)
     else:
-        raise DataSourceError(f'{path} is neither a bag (metadata.yaml), a run folder (run.yaml) '
-                              f'nor a shape report (sweeps.npz)')
+        raise DataSourceError(f'{path} is neither a bag (metadata.yaml), a run folder (run.yaml), '
+                              f'an experiment (experiment.yaml) nor a shape report (sweeps.npz)')
     if fan_names is not None:
         data.check_fans(fan_names)
     return data

@@ -8,58 +8,10 @@ import pytest
 
 from wind_shaper.app import Setup
 from wind_shaper.coordination import (CANCELLED, COMMANDING, ESTIMATING, FAILED, SWEEPING,
-                                      UPDATING, FanWatch, FieldAnswer, IterationStopped,
+                                      UPDATING, FanWatch, IterationStopped,
                                       ShapingRun, run_iteration)
 from wind_shaper.core.errors import WindShaperError
-
-
-class SimPorts:
-    """The rig's ports on the in-process simulator: commands go to the plant, a sweep records
-    1000 samples, the estimate is the core FieldEstimator's. ``refuse`` sweeps are refused first
-    (as an estimator does on coverage gaps); ``cancel_after`` raises at that boundary."""
-
-    def __init__(self, setup, seed=0, refuse=0, cancel_after=None):
-        self.sim = setup.make_sim(seed=seed)
-        self.estimator = setup.shaping.make_estimator()
-        self.key_points = setup.geometry.key_points
-        self.states, self.warnings, self.commanded = [], [], []
-        self.refuse, self.cancel_after, self.boundaries = refuse, cancel_after, 0
-        self.samples = []
-
-    def set_state(self, state, message):
-        self.states.append(state)
-
-    def warn(self, message):
-        self.warnings.append(message)
-
-    def check_boundary(self):
-        self.boundaries += 1
-        if self.cancel_after is not None and self.boundaries > self.cancel_after:
-            raise IterationStopped(CANCELLED, 'cancelled by the test')
-
-    async def command_fans(self, U):
-        self.commanded.append(np.array(U))
-        self.sim.apply(U)
-        await asyncio.sleep(0)
-
-    async def begin_sweep(self):
-        self.samples = []
-
-    async def sweep(self, k, attempt):
-        self.set_state(SWEEPING, f'sweep {attempt}')
-        self.samples.append(self.sim.sweep(1000))
-        await asyncio.sleep(0)
-
-    async def estimate(self, k, U):
-        if self.refuse:
-            self.refuse -= 1
-            return FieldAnswer(False, 'a gap of 9 cm')
-        s = self.samples
-        from wind_shaper.core.tunnel import Sweep
-        sweep = Sweep(np.concatenate([x.positions for x in s]), np.concatenate([x.forces for x in s]),
-                      np.concatenate([x.times for x in s]), U)
-        est = self.estimator.estimate(sweep, self.key_points)
-        return FieldAnswer(True, '', self.key_points, est.mean, est.std, sweep, est.n_used, 0.01)
+from sim_ports import SimPorts
 
 
 @pytest.fixture(scope='module')

@@ -24,15 +24,31 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..core.errors import WindShaperError
 from ..core.geometry import FanArray
-from .data import design_commands
-from .errors import WorkbenchError
 
-__all__ = ['Design', 'DesignError', 'make_design', 'write_design']
+__all__ = ['Design', 'DesignError', 'design_commands', 'check_design', 'make_design',
+           'write_design']
 
 
-class DesignError(WorkbenchError, ValueError):
+class DesignError(WindShaperError, ValueError):
     """A design that cannot be run: the message says what is wrong and what to do."""
+
+
+def design_commands(n_fans: int, n_sweeps: int, *, low: float = 0.0, high: float = 0.9,
+                    seed: int = 0, enabled: np.ndarray | None = None) -> np.ndarray:
+    """(n_sweeps, n_fans) commands [fraction] for a diagnostic data set: a Latin hypercube, so
+    every fan's commands spread evenly over [low, high] (dead band and saturation included) and
+    are uncorrelated with the other fans' (each fan's effect can be told apart). Disabled fans 0."""
+    if n_sweeps < 1 or not 0 <= low < high <= 1:
+        raise DesignError(f'design needs n_sweeps >= 1 and 0 <= low < high <= 1; got '
+                          f'{n_sweeps}, {low}, {high}')
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xD0E]))
+    levels = low + (high - low) * (np.arange(n_sweeps) + rng.uniform(0.2, 0.8, (n_fans, n_sweeps))) / n_sweeps
+    U = np.array([rng.permutation(row) for row in levels]).T
+    if enabled is not None:
+        U = U * np.asarray(enabled, dtype=bool)[None, :]
+    return U
 
 
 @dataclass(frozen=True)
@@ -58,7 +74,11 @@ class Design:
         return float(np.median(q75 - q25))
 
 
-def _checked(names, commands, labels, fans: FanArray, u_min: float, u_max: float, source: str) -> Design:
+def check_design(names, commands, labels, fans: FanArray, u_min: float, u_max: float,
+                 source: str) -> Design:
+    """The design of the table ``commands`` (S, len(names)) [fraction] with columns ``names`` (any
+    order) and one label per row, reordered to the tunnel's fan order; DesignError naming the
+    sweep, fan and value when it cannot run (see the module docstring)."""
     commands = np.asarray(commands, dtype=float)
     if commands.ndim != 2 or len(commands) == 0:
         raise DesignError(f'{source}: the design has no sweeps; give at least one row of commands')
@@ -148,7 +168,7 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
         inner = design_commands(n, count - 2, low=u_min, high=u_max, seed=seed, enabled=fans.enabled)
         commands = np.vstack([np.zeros(n), inner, np.zeros(n)])
         labels = ['fans off'] + [f'lhs {i + 1}' for i in range(count - 2)] + ['fans off again']
-        return _checked(list(fans.names), commands, labels, fans, u_min, u_max, spec)
+        return check_design(list(fans.names), commands, labels, fans, u_min, u_max, spec)
     if spec == 'single-off':
         mid = 0.5 * (u_min + u_max)
         rows, labels = [np.where(fans.enabled, mid, 0.0)], ['all at the middle']
@@ -157,7 +177,7 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
             row[j] = 0.0
             rows.append(row)
             labels.append(f'{fans.names[j]} off')
-        return _checked(list(fans.names), np.array(rows), labels, fans, u_min, u_max, spec)
+        return check_design(list(fans.names), np.array(rows), labels, fans, u_min, u_max, spec)
     path = Path(spec)
     if path.suffix.lower() == '.csv':
         names, commands, labels = _read_csv(path)
@@ -165,7 +185,7 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
         names, commands, labels = _read_yaml(path)
     else:
         raise DesignError(f'unknown design {spec!r}: give lhs:N, single-off, or a .csv or .yaml file')
-    return _checked(names, commands, labels, fans, u_min, u_max, str(path))
+    return check_design(names, commands, labels, fans, u_min, u_max, str(path))
 
 
 def write_design(path, design: Design) -> Path:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from wind_shaper.core.geometry import TunnelGeometry
-from wind_shaper.workbench.design import DesignError, make_design, write_design
+from wind_shaper.experiment.design import DesignError, make_design, write_design
 
 
 @pytest.fixture(scope='module')

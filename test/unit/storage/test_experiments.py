@@ -1,0 +1,74 @@
+"""storage.experiments: the experiment folder keeps every stored row and flagged take, resumes
+only the same design, and survives a crash between a row's files."""
+import numpy as np
+import pytest
+
+from wind_shaper.core.errors import RunFolderError
+from wind_shaper.core.tunnel import Sweep
+from wind_shaper.experiment import make_design
+from wind_shaper.app import Setup
+from wind_shaper.storage import FLAGGED, PENDING, STORED, ExperimentPlan, ExperimentStore
+
+
+def plan(seed=0, n=4):
+    fans = Setup.load().geometry.fans
+    d = make_design(f'lhs:{n}', fans, 0.0, 0.6, seed=seed)
+    return ExperimentPlan(d.source, d.fan_names, d.commands, d.labels, np.zeros((5, 2)))
+
+
+def sweep(U, n=50, seed=0):
+    rng = np.random.default_rng(seed)
+    return Sweep(rng.uniform(0, 0.2, (n, 2)), rng.normal(1, 0.1, n), np.arange(n) * 0.01, U)
+
+
+def test_rows_go_from_pending_to_flagged_to_stored_and_read_back(tmp_path):
+    p = plan()
+    store = ExperimentStore.open(tmp_path, 'e', p)
+    assert store.states() == [PENDING] * 4 and np.all(np.isnan(store.coverage()))
+    store.write_flagged(1, sweep(p.commands[1]), {'coverage': 0.8, 'message': 'a gap'})
+    store.write_flagged(1, None, {'coverage': 0.0, 'message': 'no samples'})
+    store.write_sweep(0, sweep(p.commands[0]), {'coverage': 1.0})
+    assert store.states() == [STORED, FLAGGED, PENDING, PENDING]
+    assert store.pending() == [1, 2, 3]
+    assert store.coverage()[:2].tolist() == [1.0, 0.0]
+    assert sorted(x.name for x in store.row_dir(1).iterdir()) == [
+        'flagged-1.json', 'flagged-1.npz', 'flagged-2.json']
+    again = ExperimentStore.open(tmp_path, 'e')   # without a plan: as stored
+    [row] = again.stored()
+    assert row.index == 0 and row.label == p.labels[0] and row.record['coverage'] == 1.0
+    assert np.allclose(row.sweep.forces, sweep(p.commands[0]).forces)
+    assert np.allclose(again.plan.commands, p.commands)
+
+
+def test_a_sweep_at_other_commands_than_its_row_is_refused(tmp_path):
+    p = plan()
+    store = ExperimentStore.open(tmp_path, 'e', p)
+    with pytest.raises(RunFolderError, match='the design says'):
+        store.write_sweep(1, sweep(p.commands[2]), {})
+    with pytest.raises(RunFolderError, match='not a row'):
+        store.write_sweep(7, sweep(p.commands[2]), {})
+
+
+def test_a_crash_before_the_record_leaves_the_row_pending(tmp_path):
+    p = plan()
+    store = ExperimentStore.open(tmp_path, 'e', p)
+    store.write_sweep(2, sweep(p.commands[2]), {})
+    (store.row_dir(2) / 'record.json').unlink()    # as if killed between the two files
+    assert store.row_state(2) == PENDING
+
+
+def test_only_the_same_design_resumes_and_other_folders_are_left_alone(tmp_path):
+    ExperimentStore.open(tmp_path, 'e', plan())
+    ExperimentStore.open(tmp_path, 'e', plan())
+    with pytest.raises(RunFolderError, match='another design'):
+        ExperimentStore.open(tmp_path, 'e', plan(seed=3))
+    (tmp_path / 'run').mkdir()
+    (tmp_path / 'run' / 'run.yaml').write_text('x')
+    with pytest.raises(RunFolderError, match='shaping run folder'):
+        ExperimentStore.open(tmp_path, 'run', plan())
+    (tmp_path / 'junk').mkdir()
+    (tmp_path / 'junk' / 'a.txt').write_text('x')
+    with pytest.raises(RunFolderError, match='not an experiment folder'):
+        ExperimentStore.open(tmp_path, 'junk', plan())
+    with pytest.raises(RunFolderError, match='plain folder name'):
+        ExperimentStore.open(tmp_path, '../x', plan())
