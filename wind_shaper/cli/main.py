@@ -66,16 +66,37 @@ def _cmd_shape(args) -> int:
 
 def _cmd_calibrate(args) -> int:
     from ..app import Setup, calibrate, save_fit
-    if not args.sim:
-        print('wind-shaper calibrate runs on the built-in simulated tunnel only so far: add --sim. '
-              'Collecting the calibration batch on a rig through the node graph is not built yet.',
-              file=sys.stderr)
+    if args.sim == bool(args.data):
+        print('wind-shaper calibrate needs the data to fit: --data RUN_OR_BAG (moving-plate sweeps '
+              'at varied commands, e.g. from `wind-shaper collect --design lhs:6 --out NAME`) or '
+              '--sim (the held-plate batch on the built-in simulated tunnel)', file=sys.stderr)
         return 2
     setup = Setup.load(args.config, args.disable)
+    if args.data:
+        return _calibrate_from_data(setup, args)
     fit = calibrate(setup.make_sim(seed=args.seed), setup.geometry.fans)
     out = args.out or setup.model_path
     save_fit(out, fit, source=f'simulated tunnel, seed {args.seed}')
     print(f'fitted {fit.model!r}\nRMSE {fit.rmse:.4f} N on {fit.n} samples; written to {out}')
+    return 0
+
+
+def _calibrate_from_data(setup, args) -> int:
+    from ..model import paper_prior
+    from ..workbench.calibrate import calibrate_from_sweeps, save_calibration
+    from ..workbench.data import load_sweeps
+    fans = setup.geometry.fans
+    prior = setup.load_model(args.model) if args.model else paper_prior(fans)
+    data = load_sweeps(args.data, fans.names)
+    cal = calibrate_from_sweeps(data, prior)
+    out = args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml'
+    save_calibration(out, cal)
+    print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {data.source}')
+    print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
+          f'({", ".join(cal.held_out)}) of a fit on the others')
+    for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
+        print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
+    print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
     return 0
 
 
@@ -124,10 +145,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/shape-<time>)')
     p.set_defaults(func=_cmd_shape)
 
-    p = sub.add_parser('calibrate', help='collect the calibration batch and fit the prior')
+    p = sub.add_parser('calibrate', help='fit the prior: from recorded moving-plate sweeps (--data) '
+                                         'or the held-plate batch on the simulated tunnel (--sim)')
     _common(p)
-    p.add_argument('--sim', action='store_true', help='calibrate on the simulated tunnel')
-    p.add_argument('--out', type=Path, default=None, help='model file to write (default: config/model.yaml)')
+    p.add_argument('--data', type=Path, default=None, metavar='RUN_OR_BAG',
+                   help='sweeps at varied commands: an experiment folder or bag of `wind-shaper '
+                        'collect`, a run folder or a shape report')
+    p.add_argument('--model', type=Path, default=None,
+                   help='with --data: the model whose free parameters are fitted (default: the '
+                        'paper\'s prior)')
+    p.add_argument('--sim', action='store_true', help='collect the held-plate batch on the simulated '
+                                                      'tunnel and fit the paper\'s prior to it')
+    p.add_argument('--out', type=Path, default=None,
+                   help='model file to write (default: models/<data name>.yaml with --data, '
+                        'config/model.yaml with --sim)')
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser('targets', help='target profiles: write a CSV template to edit by hand')

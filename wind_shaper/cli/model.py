@@ -92,19 +92,25 @@ def _cmd_fit(args) -> int:
 
 def _commission(setup, args, out) -> int:
     from ..model import save_model
-    from ..workbench.reference import commission_on
+    from ..workbench.reference import commission, commission_on
     from ..workbench.report import Report
-    if not args.sim:
-        print('--commission runs the calibration batch on the simulated tunnel (--sim); on the rig, '
-              'record the batch and fit it with the workbench API (docs/workbench.md)', file=sys.stderr)
-        return 2
-    ref = commission_on(_sim(setup, args))
+    if args.sim == bool(args.data):
+        raise WindShaperError('--commission fits the reference on --data RUN_OR_BAG (sweeps at varied '
+                              'commands, e.g. from `wind-shaper collect --design lhs:12 --out NAME`) '
+                              'or on the held-plate batch of the simulated tunnel (--sim), not both')
+    if args.sim:
+        ref = commission_on(_sim(setup, args))
+        source = f'commissioning batch on the simulated tunnel (seed {args.seed})'
+    else:
+        data = _data(setup, args)
+        ref = commission(data.fit_data(), setup.geometry.fans)
+        source = f'{len(data)} moving-plate sweeps: {data.source}'
     save = args.save or (out / REFERENCE_FILE)
-    save_model(save, ref.model, fitted_from=f'commissioning batch on the simulated tunnel (seed {args.seed})',
+    save_model(save, ref.model, fitted_from=source,
                rmse_N=round(ref.fit.rmse, 5), n_samples=ref.fit.n,
                fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'))
     rep = Report('Commissioned reference model')
-    rep.text(f'Calibration batch: {ref.fit.n} held-plate measurements; RMSE {ref.fit.rmse:.4f} N.\n\n'
+    rep.text(f'Fitted on {source}: {ref.fit.n} data points; RMSE {ref.fit.rmse:.4f} N.\n\n'
              f'Model: {ref.model!r}')
     rep.table(['fan', 'thrust gain', 'width scale', 'landing offset x [cm]', 'y [cm]'],
               [[k, f'{v["gain"]:.3f}', f'{v["width_scale"]:.3f}', f'{100 * v["offset_m"][0]:.1f}',
@@ -253,8 +259,10 @@ def register(subparsers) -> None:
     _common(p)
     p.add_argument('--save', type=Path, default=None, help='write the fitted model file here')
     p.add_argument('--commission', action='store_true',
-                   help='instead: run the commissioning calibration batch (--sim) and fit the reference '
-                        'model (each fan\'s gain, width, landing; curve bend and flatness per group)')
+                   help='instead: fit the reference model (each fan\'s gain, width, landing; curve bend '
+                        'and flatness per group) on --data sweeps, or on the commissioning batch of '
+                        'the simulated tunnel (--sim); saved as reference.yaml, what diagnose measures '
+                        'changes against')
     p.set_defaults(func=_cmd_fit)
 
     p = sub.add_parser('compare', help='several models against the same sweeps, side by side')

@@ -9,7 +9,9 @@ whole table is refused before any fan moves) and creates its folder
 commands, applied and settled) -> ``sweeping`` (the plate moves once) -> ``checking`` (the field
 estimator's verdict: a sweep that missed part of the area, or has too few samples, is swept
 again at the same commands and pooled, up to ``max_sweeps``) -> the row is *stored*, or
-*flagged* (its takes kept, never used as data; the next call sweeps it again). It awaits the same
+*flagged* (its takes kept, never used as data; the next call sweeps it again). A sweep with no
+pairs at all (a force or pose stream is down) stops the experiment at once: every later row
+would fail the same way. It awaits the same
 ``RigPorts`` as a shaping iteration (``coordination.iteration``), so the hardware path is the
 shaping loop's. Any port may raise ``IterationStopped`` (failed or cancelled): the rows stored
 before stay stored. Commands [fraction 0..1, the tunnel's fan order]; times [s].
@@ -27,7 +29,7 @@ from ..core.tunnel import Sweep
 from ..estimation import coverage_share
 from ..experiment import Design, DesignError, check_design
 from ..storage import FLAGGED, PENDING, STORED, ExperimentPlan, ExperimentStore
-from .iteration import RigPorts
+from .iteration import FAILED, IterationStopped, RigPorts
 
 COMMANDING, SWEEPING, CHECKING = 'commanding', 'sweeping', 'checking'
 
@@ -150,6 +152,11 @@ async def run_experiment(exp: Experiment, ports: ExperimentPorts, *, max_sweeps:
                 results.append(RowResult(i, label, STORED, share, len(sweep), attempt))
                 ports.row_done(i, STORED, sweep, share)
                 break
+            if sweep is None or not len(sweep):
+                # no pairs at all: a stream is down, and every further row would fail the same way
+                raise IterationStopped(FAILED, f'{where}: no (force, pose) pairs: {answer.message}; '
+                                       f'check the force sensor and motion-capture streams, then '
+                                       f'call collect again (the stored sweeps stay)')
             if attempt == max_sweeps:
                 exp.store.write_flagged(i, sweep, {**info, 'message': answer.message})
                 results.append(RowResult(i, label, FLAGGED, share, 0 if sweep is None else len(sweep),

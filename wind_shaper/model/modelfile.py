@@ -31,8 +31,10 @@ def load_model(path, fans: FanArray) -> Term:
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ModelFileError(f'model file {path} does not exist: fit one with '
-                             f'`wind-shaper calibrate --sim --out {path}`') from None
+        raise ModelFileError(f'model file {path} does not exist: fit one with `wind-shaper '
+                             f'calibrate --data EXPERIMENT --out {path}` (sweeps from `wind-shaper '
+                             f'collect`) or, on the simulated tunnel, `wind-shaper calibrate --sim '
+                             f'--out {path}`') from None
     except OSError as exc:
         raise ModelFileError(f'model file {path} cannot be read ({exc})') from None
     return model_from_text(text, fans, source=str(path))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from wind_shaper.app import Setup
-from wind_shaper.coordination import (CANCELLED, CHECKING, COMMANDING, SWEEPING, Experiment,
-                                      IterationStopped, run_experiment)
+from wind_shaper.coordination import (CANCELLED, CHECKING, COMMANDING, FAILED, SWEEPING,
+                                      Experiment, FieldAnswer, IterationStopped, run_experiment)
 from wind_shaper.core.errors import RunFolderError
 from wind_shaper.experiment import DesignError, make_design
 from wind_shaper.storage import FLAGGED, PENDING, STORED
@@ -113,3 +113,22 @@ def test_a_table_in_another_fan_order_is_reordered_and_wrong_fans_are_refused(se
         Experiment.open(setup, tmp_path, 'bad', names[:-1] + ['XX'], d.commands, d.labels, 'x')
     with pytest.raises(DesignError, match='do not fill rows'):
         Experiment.open(setup, tmp_path, 'bad', names, d.commands.ravel()[:-1], [], 'x')
+
+
+def test_a_sweep_without_any_pairs_stops_the_experiment_and_keeps_the_stored_rows(setup, tmp_path):
+    exp, _ = open_experiment(setup, tmp_path, 'lhs:4')
+    ports = SimPorts(setup)
+    real = ports.estimate
+
+    async def estimate(k, U):
+        if len(ports.done) == 1:   # the force stream stopped after the first row
+            return FieldAnswer(False, 'the force stream has no samples in the sweep')
+        return await real(k, U)
+
+    ports.estimate = estimate
+    with pytest.raises(IterationStopped, match='no .force, pose. pairs.*force stream.*check the '
+                                                'force sensor') as stop:
+        asyncio.run(run_experiment(exp, ports, max_sweeps=3))
+    assert stop.value.state == FAILED
+    assert exp.states() == [STORED, PENDING, PENDING, PENDING]
+    assert len(ports.commanded) == 2   # stopped at once, not after max_sweeps takes

@@ -1,0 +1,85 @@
+"""The prior fitted on moving-plate sweeps: calibration without the held-plate batch.
+
+``calibrate_from_sweeps`` fits a model's free parameters (the paper's prior by default: its
+thrust polynomials and footprint widths) on the cell means of designed sweeps (``wind-shaper
+collect``), and grades it honestly: fitted on all but the held-out sweeps (every third, split by
+sweep), scored on those, then refitted on everything for the model that is saved. The parameter
+uncertainties are Gauss-Newton 1-sigma errors of the final fit. ``save_calibration`` writes the
+model file with the fit RMSE, the held-out RMSE and the uncertainties, for ``set-model`` or
+``config/model.yaml``. Forces [N], positions [m], commands [fraction].
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model import Term, save_model
+from .data import SweepSet
+from .errors import DataSourceError
+from .fitting import FitResult, fit_model
+
+__all__ = ['Calibration', 'calibrate_from_sweeps', 'save_calibration', 'MIN_SWEEPS']
+
+#: Fewer sweeps than this cannot both fit a prior and hold some out to grade it.
+MIN_SWEEPS = 3
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """fit: the model fitted on every sweep; heldout_rmse: RMSE [N] on the held-out sweeps of the
+    fit on the others (cell means); train_rmse: that fit's RMSE on its own sweeps [N];
+    held_out: the held-out sweeps' labels; source: where the sweeps came from."""
+
+    fit: FitResult
+    heldout_rmse: float
+    train_rmse: float
+    held_out: tuple
+    n_sweeps: int
+    source: str
+
+    @property
+    def model(self) -> Term:
+        return self.fit.model
+
+    def summary(self) -> dict:
+        return {'source': self.source, 'n_sweeps': self.n_sweeps, 'rmse_N': self.fit.rmse,
+                'heldout_rmse_N': self.heldout_rmse, 'train_rmse_N': self.train_rmse,
+                'held_out': list(self.held_out), 'parameters': self.fit.summary()['parameters']}
+
+
+def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
+                          test_fraction: float = 1 / 3, max_nfev: int = 200) -> Calibration:
+    """Fit ``prior`` on ``data`` (see the module docstring). DataSourceError when there are too
+    few sweeps or their commands do not vary enough to pin the fans down."""
+    if len(data) < MIN_SWEEPS:
+        raise DataSourceError(f'{len(data)} sweep(s) cannot calibrate a prior: record at least '
+                              f'{MIN_SWEEPS} at different commands (`wind-shaper collect --design '
+                              f'lhs:6`)')
+    spread = data.command_spread(np.asarray(prior.fans.enabled, bool))['median']
+    if spread < 0.05:
+        raise DataSourceError(f'the sweeps\' commands hardly vary (median spread {100 * spread:.1f} % '
+                              f'PWM): a prior fitted on them cannot tell the fans apart; record a '
+                              f'designed experiment (`wind-shaper collect --design lhs:6`)')
+    train, test = data.split(test_fraction)
+    graded = fit_model(prior, train.fit_data(cell), max_nfev=max_nfev)
+    held = test.fit_data(cell)
+    r = graded.model(held.U, held.Z) - held.y
+    final = fit_model(graded.model, data.fit_data(cell), max_nfev=max_nfev)
+    return Calibration(final, float(np.sqrt(np.mean(r ** 2))), graded.rmse, tuple(test.labels),
+                       len(data), data.source)
+
+
+def save_calibration(path, cal: Calibration):
+    """Write the calibrated model file: the model, its fit and held-out RMSE [N] and each fitted
+    parameter with its 1-sigma error."""
+    def num(x):
+        return None if not math.isfinite(x) else round(float(x), 6)
+    return save_model(path, cal.model, fitted_from=f'{cal.n_sweeps} moving-plate sweeps: {cal.source}',
+                      rmse_N=num(cal.fit.rmse), heldout_rmse_N=num(cal.heldout_rmse),
+                      held_out_sweeps=list(cal.held_out), n_samples=int(cal.fit.n),
+                      fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),
+                      parameters={n: {'value': num(v), 'std': num(s)}
+                                  for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)})
