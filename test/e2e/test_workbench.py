@@ -16,11 +16,17 @@ def _summary(out):
 def test_diagnose_then_add_on_the_simulator(tmp_path, capsys):
     hidden = ['--sim', '--hidden', 'tilted_fan:fan=LM2,shift=0.04/0', '--seed', '5']
     diag = tmp_path / 'diag'
-    assert main(['model', 'diagnose', *hidden, '--out', str(diag)]) == 0
+    assert main(['model', 'diagnose', *hidden, '--out', str(diag), '--suggest', '3']) == 0
     printed = capsys.readouterr().out
     assert 'the jet of fan LM2 lands' in printed and 'report:' in printed
+    # the suggested follow-up is a design `wind-shaper collect` runs (checked, nothing moves)
+    assert f'wind-shaper collect --design {diag / "suggested_design.csv"}' in printed
+    assert main(['collect', '--design', str(diag / 'suggested_design.csv'), '--out', 'next',
+                 '--dry-run']) == 0
+    assert 'suggested 3' in capsys.readouterr().out
     doc = _summary(diag)
     assert doc['verdict'] == 'found' and doc['findings'][0]['candidate'] == 'fan_shift[LM2]'
+    assert len(doc['suggestion']['commands']) == 3 and doc['suggestion']['goal'] in ('separate', 'shrink')
     assert doc['truth'] == [{'name': 'tilted_fan', 'fan': 'LM2', 'shift': [0.04, 0.0]}]
     html = (diag / 'report.html').read_text()
     assert html.count('data:image/png;base64,') >= 4 and 'Against the simulator' in html

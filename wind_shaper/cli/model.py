@@ -8,13 +8,13 @@ writes a report folder (report.html, report.md, PNGs, summary.json).
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
 from ..core.errors import WindShaperError
 
 REFERENCE_FILE = 'reference.yaml'
+SUGGESTED_DESIGN = 'suggested_design.csv'
 
 
 def _load_plugins(specs) -> list:
@@ -49,7 +49,11 @@ def _data(setup, args):
         return simulated_sweeps(_sim(setup, args), args.sweeps, seed=args.seed, n_samples=args.samples)
     if args.hidden:
         raise WindShaperError('--hidden switches on simulator effects: use it with --sim')
-    return load_sweeps(args.data, setup.geometry.fans.names)
+    names = setup.geometry.fans.names
+    data = load_sweeps(args.data[0], names)
+    for path in args.data[1:]:
+        data = data + load_sweeps(path, names)
+    return data
 
 
 def _model_path(setup, path):
@@ -152,10 +156,18 @@ def _cmd_diagnose(args) -> int:
     model = setup.load_model(path)
     data = _data(setup, args)
     out = _out(args, 'diagnose')
+    bounds = setup.shaping.bounds
     d = diagnose_command(model, data, setup.geometry, out,
                          diagnosis=Diagnosis(library, max_effects=args.max_effects, noise_sd=args.noise_sd),
-                         truth=_hidden(args) if args.sim else ())
+                         truth=_hidden(args) if args.sim else (),
+                         suggest=args.suggest, goal=args.goal, bounds=(bounds.u_min, bounds.u_max))
     print(d.summary())
+    if args.suggest:
+        s = d.suggestion_
+        print(f'suggested {len(s.design)} sweeps ({s.goal}: {s.outcome_text()}); saved as '
+              f'{out / SUGGESTED_DESIGN}')
+        print(f'next: wind-shaper collect --design {out / SUGGESTED_DESIGN} --out <name>, then '
+              f'diagnose again with --data for both experiments')
     print(f'report: {out}/ (report.html, report.md, summary.json)')
     return 0
 
@@ -231,8 +243,10 @@ def _common(p, multi_model=False):
     src.add_argument('--sweeps', type=int, default=12, help='simulated sweeps (first and last with fans off)')
     src.add_argument('--samples', type=int, default=1000, help='plate samples per simulated sweep')
     src.add_argument('--seed', type=int, default=0, help='simulator seed')
-    src.add_argument('--data', type=Path, default=None,
-                     help='recorded sweeps: a rosbag2 bag, a coordinator run folder or a shape report')
+    src.add_argument('--data', type=Path, action='append', default=[],
+                     help='recorded sweeps: an experiment folder or bag of `wind-shaper collect`, a '
+                          'coordinator run folder, a rosbag2 bag or a shape report; repeat to pool '
+                          'several (e.g. an experiment and its suggested follow-up)')
     if multi_model:
         p.add_argument('--model', type=Path, action='append', default=None,
                        help='a model file; repeat to compare several (default: the reference)')
@@ -275,6 +289,13 @@ def register(subparsers) -> None:
     p.add_argument('--families', default=None,
                    help='comma-separated candidate families (default: all; see docs/workbench.md)')
     p.add_argument('--max-effects', type=int, default=3, help='most effects forward selection adds')
+    p.add_argument('--suggest', type=int, default=0, metavar='N',
+                   help=f'also suggest the N next sweeps that teach the diagnosis most, saved as '
+                        f'{SUGGESTED_DESIGN} in the report folder for `wind-shaper collect --design`')
+    p.add_argument('--goal', choices=('auto', 'separate', 'shrink'), default='auto',
+                   help='what the suggested sweeps are for: separate the leading candidate effects, '
+                        'shrink the fitted parameters\' uncertainty, or auto (separate when the '
+                        'diagnosis is unsure)')
     p.set_defaults(func=_cmd_diagnose)
 
     p = sub.add_parser('add', help='add effects to the model, refit, before/after report, new model file')

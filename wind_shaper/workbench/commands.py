@@ -15,6 +15,7 @@ import numpy as np
 
 from ..core.config import parse_spec
 from ..core.geometry import TunnelGeometry
+from ..experiment import write_design
 from ..model import TERMS, Term, Wrapper, save_model, term_label, walk
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
@@ -25,6 +26,7 @@ from .metrics import HeldOut, evaluate
 from .report import (Report, plot_closed_loop, plot_fan_curves, plot_measured_vs_model,
                      plot_radial_angular, plot_ranking, plot_residual_maps)
 from .residuals import analyse_residuals
+from .suggest import suggest_sweeps
 
 __all__ = ['simulated_sweeps', 'fit_command', 'compare_command', 'diagnose_command', 'add_command',
            'parse_spec', 'model_with_additions', 'FitOutcome', 'AddOutcome']
@@ -170,11 +172,16 @@ def compare_command(models: Mapping[str, Term], data: SweepSet, geometry: Tunnel
 
 def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out, *,
                      library: Library | None = None, truth: Sequence = (),
-                     diagnosis: Diagnosis | None = None) -> Diagnosis:
+                     diagnosis: Diagnosis | None = None, suggest: int = 0, goal: str = 'auto',
+                     bounds: tuple = (0.0, 0.9)) -> Diagnosis:
     """Run the diagnosis and report it: verdict, findings with parameters and uncertainties,
     the ranked table of candidates, residual maps before and after. ``truth``: the simulator's
-    hidden effects, when known, to set the findings beside."""
+    hidden effects, when known, to set the findings beside. ``suggest`` > 0: also the next
+    sweeps (``suggest.suggest_sweeps`` with ``goal`` within ``bounds`` = (u_min, u_max)), saved
+    as ``suggested_design.csv`` and kept as ``d.suggestion_``."""
     d = (diagnosis or Diagnosis(library)).fit(model, data, geometry)
+    d.suggestion_ = (suggest_sweeps(d, suggest, bounds[0], bounds[1], goal=goal)
+                     if suggest > 0 else None)
     rep = Report('Model diagnosis')
     rep.text(f'Data: {data.source}, {len(data)} sweeps; held out: {", ".join(d.test_sweeps_.labels)}.\n\n'
              f'Model: {model!r}')
@@ -222,12 +229,26 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
     if d.steps_:
         analyses['after'] = analyse_residuals(d.final_.model, every, geometry)
     _residual_sections(rep, analyses, geometry, 'diagnosis')
+    if d.suggestion_ is not None:
+        _suggestion_section(rep, d.suggestion_, out)
     rep.summary = {'command': 'diagnose', 'data': data.source, **d.to_json(),
+                   'suggestion': d.suggestion_.summary() if d.suggestion_ is not None else None,
                    'residual_before': analyses['before'].to_json(),
                    'residual_after': analyses['after'].to_json() if 'after' in analyses else None,
                    'truth': [e.spec() for e in truth]}
     rep.write(out)
     return d
+
+
+def _suggestion_section(rep: Report, s, out) -> None:
+    """The suggested sweeps: their commands, and what they are expected to do."""
+    Path(out).mkdir(parents=True, exist_ok=True)
+    write_design(Path(out) / 'suggested_design.csv', s.design)
+    rep.table(['sweep', *s.design.fan_names],
+              [[lab, *(f'{100 * u:.1f}' for u in row)] for lab, row in zip(s.design.labels, s.design.commands)],
+              heading=f'Suggested next sweeps ({s.goal}), commands in % of full PWM: '
+                      f'suggested_design.csv, for `wind-shaper collect --design`')
+    rep.text(s.outcome_text())
 
 
 def _short_params(params: dict) -> str:
