@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     totals = {arm: sum(r[arm]['found'] for r in rows) for arm in ('first', 'suggested', 'random')}
     print(f'\nfound: {totals["first"]}/{len(rows)} after {FIRST} sweeps, {totals["suggested"]}/{len(rows)} '
           f'with {MORE} suggested, {totals["random"]}/{len(rows)} with {MORE} random; goals: '
-          f'{ {g: sum(r["goal"] == g for r in rows) for g in ("separate", "shrink")} }; '
+          f'{ {g: sum(r["goal"] == g for r in rows) for g in ("separate", "shrink", "explore")} }; '
           f'{len(rows)} runs in {time.time() - t0:.0f} s')
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({'seeds': args.seeds, 'rows': rows, 'table': text}, indent=1))

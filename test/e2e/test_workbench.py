@@ -70,6 +70,7 @@ def test_fit_and_compare_write_their_reports(tmp_path, capsys):
     (['model', 'add', '--sim', '--effect', 'fan_gain[NOPE]'], 'fan_gain[NOPE]'),
     (['model', 'diagnose', '--data', 'no/such/bag'], 'does not exist'),
     (['model', 'add', '--sim'], 'nothing to add'),
+    (['model', 'diagnose', '--sim'], '3 sweeps are too few for a diagnosis'),
 ])
 def test_bad_input_is_named(argv, message, capsys, tmp_path):
     assert main(argv + ['--sweeps', '3', '--samples', '60', '--out', str(tmp_path / 'o')]) == 2

@@ -18,8 +18,8 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from wind_shaper_msgs.msg import FanCommand, IterationStatus  # noqa: E402
-from wind_shaper_msgs.srv import EstimateField, RunIteration, SetModel, Sweep  # noqa: E402
+from wind_shaper_msgs.msg import ExperimentStatus, FanCommand, IterationStatus, SweepSamples  # noqa: E402
+from wind_shaper_msgs.srv import Collect, EstimateField, RunIteration, SetModel, Sweep  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.cli.main import main as cli  # noqa: E402
@@ -156,12 +156,13 @@ class FakeRig(Node):
         return response
 
     def _handle_estimate(self, request, response):
-        if self.refuse_estimates > 0:  # as the real estimator does when a sweep left gaps
-            self.refuse_estimates -= 1
+        sweep = self.sim.sweep(self.setup.shaping.samples_per_sweep)
+        if self.refuse_estimates > 0:  # as the real estimator does when a sweep left gaps:
+            self.refuse_estimates -= 1  # refused, with the pairs it could make
             response.success = False
             response.message = 'the sweep missed 7 of 317 key points'
+            response.samples = sweep_to_msg(sweep, request.iteration, request.fan_names)
             return response
-        sweep = self.sim.sweep(self.setup.shaping.samples_per_sweep)
         est = self.estimator.estimate(sweep, self.setup.geometry.key_points)
         response.estimate = estimate_to_msg(est, request.iteration, request.fan_names, request.pwm,
                                             len(sweep))
@@ -213,6 +214,12 @@ class Graph:
         self.run = self.client.create_client(RunIteration, names.RUN_ITERATION)
         self.cancel = self.client.create_client(Trigger, names.CANCEL_ITERATION)
         self.set_model = self.client.create_client(SetModel, names.SET_MODEL)
+        self.collect = self.client.create_client(Collect, names.COLLECT)
+        self.experiment_statuses, self.experiment_sweeps = [], []
+        self.client.create_subscription(ExperimentStatus, names.EXPERIMENT_STATUS,
+                                        self.experiment_statuses.append, qos.LATCHED)
+        self.client.create_subscription(SweepSamples, names.EXPERIMENT_SWEEPS,
+                                        self.experiment_sweeps.append, qos.COMMAND)
         self._spin(self.client)
         self.coordinator = None
 
@@ -587,3 +594,67 @@ def test_cli_help_shows_the_ros2_equivalent(capsys):
         cli(['iterate', '--help'])
     assert ('ros2 service call /wind_shaper/run_iteration wind_shaper_msgs/srv/RunIteration '
             '"{target: parabolic}"') in capsys.readouterr().out
+
+
+# -- designed experiments (the collect service) ---------------------------------------------------
+def collect_request(setup, spec='lhs:4', name='exp', **fields):
+    from wind_shaper.experiment import make_design
+    b = setup.shaping.bounds
+    d = make_design(spec, setup.geometry.fans, b.u_min, b.u_max, seed=1)
+    return d, Collect.Request(name=name, design=spec, fan_names=list(d.fan_names),
+                              commands=[float(u) for u in d.commands.ravel()],
+                              labels=list(d.labels), **fields)
+
+
+def test_collect_runs_every_row_through_the_fans_then_turns_them_off(graph, setup):
+    from wind_shaper.workbench.data import load_sweeps
+    graph.start_coordinator()
+    design, request = collect_request(setup)
+    r = graph.call(graph.collect, request, timeout=40.0)
+    assert r.success, r.message
+    assert list(r.outcome) == ['stored'] * 4 and r.stored == 4 and list(r.coverage) == [1.0] * 4
+    assert 'the fans are off' in r.message
+    seen = np.array(graph.rig.commands)
+    for row in design.commands:   # every row reached the fans, in order
+        assert np.any(np.all(np.isclose(seen, row), axis=1))
+    assert wait_until(lambda: np.allclose(graph.rig.commands[-1], 0.0), timeout=3.0)
+    assert wait_until(lambda: len(graph.experiment_sweeps) == 4, timeout=3.0)
+    assert [m.iteration for m in graph.experiment_sweeps] == [0, 1, 2, 3]
+    states = {m.state for m in graph.experiment_statuses}
+    assert states >= {'commanding', 'sweeping', 'checking', 'done'}
+    assert graph.experiment_statuses[-1].stored == 4
+    data = load_sweeps(r.run_folder, setup.geometry.fans.names)
+    assert np.allclose(data.commands, design.commands)
+    # the same request again: nothing left to sweep, nothing commanded but off
+    n = graph.rig.sweeps
+    again = graph.call(graph.collect, request, timeout=20.0)
+    assert again.success and graph.rig.sweeps == n
+
+
+def test_a_bad_design_is_refused_before_any_fan_moves(graph, setup):
+    graph.start_coordinator()
+    _, request = collect_request(setup)
+    commands = list(request.commands)
+    commands[9] = 0.97   # row 2, fan 3: above u_max
+    request.commands = commands
+    n = len(graph.rig.commands)
+    r = graph.call(graph.collect, request)
+    assert not r.success and 'no fan was commanded' in r.message and 'outside the configured range' in r.message
+    assert graph.rig.sweeps == 0 and not (graph.run_root / 'exp').exists()
+    assert all(np.allclose(c, graph.rig.commands[0]) for c in graph.rig.commands[n:])
+
+
+def test_collect_and_iterate_never_run_at_once_and_cancel_stops_the_experiment(graph, setup):
+    graph.start_coordinator(sweep_duration_s=2.0)
+    _, request = collect_request(setup, 'lhs:5')
+    future = graph.call_async(graph.collect, request)
+    assert wait_until(lambda: any(m.state == 'sweeping' for m in graph.experiment_statuses))
+    busy = graph.iterate()
+    assert not busy.success and 'an experiment is running' in busy.message
+    c = graph.call(graph.cancel, Trigger.Request())
+    assert c.success and 'cancelling the experiment' in c.message
+    assert wait_until(future.done, timeout=20.0)
+    r = future.result()
+    assert not r.success and 'cancelled' in r.message and 'pending' in list(r.outcome)
+    assert wait_until(lambda: np.allclose(graph.rig.commands[-1], 0.0), timeout=3.0)
+    assert graph.iterate().success   # the loop runs again once the experiment has ended

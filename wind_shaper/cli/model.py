@@ -292,10 +292,11 @@ def register(subparsers) -> None:
     p.add_argument('--suggest', type=int, default=0, metavar='N',
                    help=f'also suggest the N next sweeps that teach the diagnosis most, saved as '
                         f'{SUGGESTED_DESIGN} in the report folder for `wind-shaper collect --design`')
-    p.add_argument('--goal', choices=('auto', 'separate', 'shrink'), default='auto',
+    p.add_argument('--goal', choices=('auto', 'separate', 'shrink', 'explore'), default='auto',
                    help='what the suggested sweeps are for: separate the leading candidate effects, '
-                        'shrink the fitted parameters\' uncertainty, or auto (separate when the '
-                        'diagnosis is unsure)')
+                        'shrink the fitted parameters\' uncertainty, explore commands not recorded '
+                        'yet, or auto (explore when nothing was found, separate when the finding has '
+                        'a close runner-up, else shrink)')
     p.set_defaults(func=_cmd_diagnose)
 
     p = sub.add_parser('add', help='add effects to the model, refit, before/after report, new model file')

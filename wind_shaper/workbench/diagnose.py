@@ -3,7 +3,8 @@
 ``Diagnosis(library).fit(model, sweeps, geometry)`` (an estimator: ``fit`` returns self, fitted
 state ends in ``_``):
 
-1. splits the sweeps into training and held-out sweeps (by sweep);
+1. splits the sweeps into training and held-out sweeps (by sweep; at least ``MIN_SWEEPS`` = 6
+   sweeps, else a FitError says to record more);
 2. refits the model's free parameters on the training sweeps (``fit_mask``: every free
    parameter except the thrust polynomials' constant terms, which stay as commissioned: a fan
    at zero command gives no thrust, and a uniform offset is the background candidate's job);
@@ -57,7 +58,10 @@ from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
 
-__all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text']
+__all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
+
+#: Fewer sweeps leave too few held out (every third) to judge a finding.
+MIN_SWEEPS = 6
 
 _HELD = re.compile(r'(^|__)thrust(_higher|_lower)?\[0\]$')
 
@@ -215,6 +219,11 @@ class Diagnosis:
     # -- fit ----------------------------------------------------------------------------------
     def fit(self, model: Term, data: SweepSet, geometry: TunnelGeometry) -> 'Diagnosis':
         data.check_fans(geometry.fans.names)
+        if len(data) < MIN_SWEEPS:
+            raise FitError(f'{len(data)} sweeps are too few for a diagnosis: it holds every third '
+                           f'sweep out to judge the findings and needs at least {MIN_SWEEPS} (8-12 '
+                           f'are better); record more at varied commands, e.g. `wind-shaper collect '
+                           f'--design lhs:12 --out NAME`, and pool them with --data')
         if model.n_fans != geometry.fans.n_fans:
             raise FitError(f'the model is for {model.n_fans} fans, the tunnel has {geometry.fans.n_fans}')
         library = self.library or default_library()

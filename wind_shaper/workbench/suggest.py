@@ -17,8 +17,12 @@ the key points, each with the measurement noise ``noise_sd`` [N] of the diagnosi
   sweeps are picked greedily to maximise log det I (D-optimality), the Jacobians by central
   differences in the parameters.
 
-``goal='auto'`` separates when the diagnosis is unsure (no finding, or the runner-up within 10 of
-the best BIC) and has refined candidates to separate, and shrinks otherwise. The candidates are random commands within [u_min, u_max]
+* **explore**: when the diagnosis found nothing, no hypothesis is there to aim at; the sweeps go
+  where the recorded ones are not (greedy maximin distance in command space, scaled by the
+  range): a space-filling follow-up.
+
+``goal='auto'`` explores when nothing was found, separates when a finding has a runner-up within
+10 of its BIC, and shrinks otherwise. The candidates are random commands within [u_min, u_max]
 (each enabled fan also off at times, the design's 0), scored all at once. The result is an
 ``experiment.Design`` that `wind-shaper collect --design FILE` runs. Commands [fraction],
 forces [N].
@@ -37,7 +41,7 @@ from .errors import FitError
 
 __all__ = ['Suggestion', 'suggest_sweeps', 'separation', 'information_gain', 'GOALS']
 
-GOALS = ('auto', 'separate', 'shrink')
+GOALS = ('auto', 'separate', 'shrink', 'explore')
 #: A runner-up within this BIC of the best refined candidate leaves the diagnosis unsure.
 UNSURE_DBIC = 10.0
 
@@ -59,6 +63,9 @@ class Suggestion:
     def outcome_text(self) -> str:
         """What the sweeps are expected to do, in words."""
         n = len(self.design)
+        if self.goal == 'explore':
+            return (f'{n} sweep(s) at commands as far as possible from the sweeps recorded (no effect '
+                    f'was found: new operating points give the diagnosis most to go on)')
         if self.goal == 'separate':
             return (f'{n} sweep(s) chosen to tell apart {", ".join(self.hypotheses)}: the closest '
                     f'pair is expected to differ by {self.value_after["min_separation"]:.1f} in '
@@ -178,9 +185,25 @@ def suggest_sweeps(d: Diagnosis, n_sweeps: int, u_min: float, u_max: float, *, g
     noise = float(d.noise_sd_) / np.sqrt(samples_per_sweep / len(Z))
     if goal == 'auto':
         refined = any(t.stage == 'refined' for r in d.rankings_ for t in r)
-        goal = 'separate' if _unsure(d) and refined else 'shrink'
+        goal = ('explore' if d.verdict_ != 'found' else
+                'separate' if _unsure(d) and refined else 'shrink')
     picked, notes = [], []
-    if goal == 'separate':
+    if goal == 'explore':
+        recorded = np.vstack([d.train_sweeps_.commands, d.test_sweeps_.commands])
+        enabled = np.asarray(geometry.fans.enabled, bool)
+        scale = max(u_max - u_min, 1e-9)
+        gap_before = None
+        for _ in range(n_sweeps):
+            seen = np.vstack([recorded] + ([np.asarray(picked)] if picked else []))
+            gaps = np.min(np.linalg.norm((U[:, None, enabled] - seen[None, :, enabled]) / scale, axis=2),
+                          axis=1)
+            gap_before = float(np.max(gaps)) if gap_before is None else gap_before
+            best = int(np.argmax(gaps))
+            picked.append(U[best])
+            notes.append(f'{gaps[best]:.2f} of the range from the nearest recorded or suggested sweep')
+        names = ['(no hypothesis yet: new operating points)']
+        value_before, value_after = {'largest_gap': gap_before}, {'largest_gap': float(gaps[best])}
+    elif goal == 'separate':
         names, models = _hypotheses(d, n_hypotheses)
         S = separation(models, U, Z, noise)          # (pool, pairs)
         total = np.zeros(S.shape[1])
