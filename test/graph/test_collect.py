@@ -5,6 +5,7 @@ the running coordinator, and diagnose the hidden effect from the experiment fold
 bag alike."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -106,3 +107,35 @@ def test_the_hidden_effect_is_named_from_the_folder_and_from_the_bag_alike(exper
         assert doc['verdict'] == 'found', out
     assert findings['runs/exp'] == findings['bags/exp']
     assert findings['runs/exp'][0] == 'fan_shift[LM2]', findings
+
+
+@pytest.mark.timeout(400)
+def test_the_guided_held_batch_resumes_after_its_command_dies_and_fits_the_prior(graph):
+    """`calibrate --held --auto` on a reduced plan (two levels, one offset): the simulated rig's
+    place service stands in for the motion stage; the command is SIGKILLed after eight points,
+    the same command again records only the rest, then fits and writes the prior."""
+    root, env, up, _ = graph
+    args = ['calibrate', '--held', '--auto', '--levels', '0,0.6', '--offsets', '0.1',
+            '--batch', 'held', '--out', 'held.yaml', '--wait', '30']
+    first = subprocess.Popen([sys.executable, '-m', 'wind_shaper.cli.main', *args], cwd=root,
+                             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    record = root / 'runs' / 'held' / 'record.jsonl'
+    try:
+        deadline = time.monotonic() + 120
+        while not (record.is_file() and len(record.read_text().splitlines()) >= 8):
+            assert time.monotonic() < deadline and first.poll() is None, first.stdout.read()
+            time.sleep(0.1)
+    finally:
+        first.kill()
+        first.wait(10)
+    kept = record.read_text().splitlines()
+    code, out = cli(root, env, *args)
+    assert code == 0, out
+    total = int(re.search(r'held-plate batch \S+: (\d+) points', out).group(1))
+    assert f'{len(kept)} done' in out or f'{len(kept) + 1} done' in out   # + the point in flight
+    lines = [json.loads(x) for x in record.read_text().splitlines()]
+    assert record.read_text().splitlines()[:len(kept)] == kept, 'a recorded point changed'
+    assert len({x['label'] for x in lines}) == total and all(x['outcome'] == 'recorded' for x in lines)
+    assert all(x['n'] >= 15 and abs(x['force_std']) < 0.5 for x in lines)
+    assert 'RMSE' in out and (root / 'held.yaml').is_file()

@@ -66,14 +66,18 @@ def _cmd_shape(args) -> int:
 
 def _cmd_calibrate(args) -> int:
     from ..app import Setup, calibrate, save_fit
-    if args.sim == bool(args.data):
-        print('wind-shaper calibrate needs the data to fit: --data RUN_OR_BAG (moving-plate sweeps '
-              'at varied commands, e.g. from `wind-shaper collect --design lhs:6 --out NAME`) or '
-              '--sim (the held-plate batch on the built-in simulated tunnel)', file=sys.stderr)
+    if int(args.sim) + int(bool(args.data)) + int(args.held) != 1:
+        print('wind-shaper calibrate needs one source: --data RUN_OR_BAG (moving-plate sweeps at '
+              'varied commands, e.g. from `wind-shaper collect --design lhs:6 --out NAME`), --held '
+              '(the held-plate batch, guided through the node graph) or --sim (that batch on the '
+              'built-in simulated tunnel, in-process)', file=sys.stderr)
         return 2
     setup = Setup.load(args.config, args.disable)
     if args.data:
         return _calibrate_from_data(setup, args)
+    if args.held:
+        from .held import run_held
+        return run_held(setup, args)
     fit = calibrate(setup.make_sim(seed=args.seed), setup.geometry.fans)
     out = args.out or setup.model_path
     save_fit(out, fit, source=f'simulated tunnel, seed {args.seed}')
@@ -157,8 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--sim', action='store_true', help='collect the held-plate batch on the simulated '
                                                       'tunnel and fit the paper\'s prior to it')
     p.add_argument('--out', type=Path, default=None,
-                   help='model file to write (default: models/<data name>.yaml with --data, '
-                        'config/model.yaml with --sim)')
+                   help='model file to write (default: models/<data or batch name>.yaml with '
+                        '--data or --held, config/model.yaml with --sim)')
+    from .held import add_arguments as held_arguments
+    held_arguments(p)
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser('targets', help='target profiles: write a CSV template to edit by hand')

@@ -51,6 +51,7 @@ from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 from ..ros.waiting import Waits
 from .collect_service import CollectService
+from .hold_service import HoldService
 
 STATUS_HZ = 2.0  # status rate while an iteration runs [Hz]
 
@@ -66,6 +67,8 @@ class CoordinatorParams:
     sweep_duration_s: float = param(20.0, 'how long one sweep lasts [s]', low=0.1, high=3600.0)
     sweep_service: str = param(names.SWEEP, "wind_shaper_msgs/Sweep service that moves the plate; "
                                "'' = wait sweep_duration_s for an operator to move it")
+    place_service: str = param(names.PLACE, "wind_shaper_msgs/Place service that brings the plate "
+                               "to a held-plate calibration point; '' = a person carries it there")
     settle_s: float = param(2.0, 'wait after the fans report the commands, before sweeping [s]',
                             low=0.0, high=600.0)
     apply_tolerance: float = param(0.005, 'largest difference between commanded and applied PWM '
@@ -139,6 +142,7 @@ class CoordinatorNode(Node):
                             callback_group=self._cb)
         self.create_service(SetModel, names.SET_MODEL, self._handle_set_model, callback_group=self._cb)
         self._collect = CollectService(self)
+        self._hold = HoldService(self, p.place_service)
         self.create_timer(1.0 / p.republish_hz, self._publish_command, callback_group=self._cb)
         self.create_timer(1.0 / STATUS_HZ, self._on_status_timer, callback_group=self._cb)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=self._cb)
@@ -169,6 +173,8 @@ class CoordinatorNode(Node):
             self._samples += 1
             if self._collect.active:
                 self._collect.on_pose(msg.pose.position.x, msg.pose.position.y)
+        if self._hold.active:
+            self._hold.on_pose(msg.pose.position.x, msg.pose.position.y)
 
     def command_in_force(self) -> np.ndarray | None:
         """What the fans are told now: an experiment's row (or off after one), else the run's."""
@@ -383,6 +389,9 @@ class CoordinatorNode(Node):
         if self._collect.active:
             return (f'an experiment is running ({self._collect.status_text()}): wait for it or '
                     f'call {names.CANCEL_ITERATION}')
+        if self._hold.active:
+            return (f'a held-plate point is being recorded: wait for it or call '
+                    f'{names.CANCEL_ITERATION}')
         return (f'an iteration is running (k={self._run.k}, {self._state}): wait for it or call '
                 f'{names.CANCEL_ITERATION}')
 
@@ -398,6 +407,26 @@ class CoordinatorNode(Node):
         with self._lock:
             self._running = False
             self._counting = False
+
+    def poke(self) -> None:
+        """A message a wait may depend on arrived (the waits re-check their condition)."""
+        self._waits.poke()
+
+    async def wait_for(self, predicate, timeout_s: float) -> bool:
+        """Wait until ``predicate()`` holds (re-checked at each ``poke``) or ``timeout_s`` [s]
+        passes (False); a cancel or the procedure's deadline raises IterationStopped."""
+        if predicate():
+            return True
+        reason = await self._waits.wait(None, self._waits.remaining(timeout_s),
+                                        until=lambda since: predicate())
+        if reason == 'cancelled':
+            self._waits.raise_for(reason, '')
+        self._waits.check()
+        return reason == 'done'
+
+    async def call(self, client, request, what: str, timeout_s: float):
+        """A service call bounded by ``timeout_s`` [s] (and the procedure's deadline)."""
+        return await self._call(client, request, what, timeout_s)
 
     def snapshot(self) -> dict:
         """The parameters, for the record of a run or an experiment."""

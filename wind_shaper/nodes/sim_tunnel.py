@@ -15,6 +15,8 @@ Plays the rig so that fan_output, force_sensor and mocap_relay run unchanged aga
 * service ``/wind_shaper/tunnel/sweep`` (``wind_shaper_msgs/Sweep``): moves the plate along the
   simulator's sweep path in real time, sped up to cover the sweep disc in ``duration_s``, and
   returns when it is back at ``rest_position`` (outside the key-point disc);
+* service ``/wind_shaper/tunnel/place`` (``wind_shaper_msgs/Place``): moves the plate to a point
+  and holds it there, as a motion stage does for the held-plate batch;
 * ``/diagnostics`` once per ``diagnostics_period_s``.
 
 The plant, the sweep planning and the frames are pure code in ``wind_shaper.sim.live``.
@@ -31,7 +33,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
-from wind_shaper_msgs.srv import Sweep
+from wind_shaper_msgs.srv import Place, Sweep
 
 from ..app import Setup, hidden_effects
 from ..core.errors import ConfigError, WindShaperError
@@ -178,6 +180,7 @@ class SimTunnel(Node):
         # hold back until the coroutine ended. LiveTunnel refuses a second sweep while one runs.
         self._sweep_group = ReentrantCallbackGroup()
         self.create_service(Sweep, names.SWEEP, self._handle_sweep, callback_group=self._sweep_group)
+        self.create_service(Place, names.PLACE, self._handle_place, callback_group=self._sweep_group)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self._mocap_thread = threading.Thread(target=self._mocap_loop, name='sim-mocap', daemon=True)
         self._mocap_thread.start()
@@ -257,6 +260,24 @@ class SimTunnel(Node):
         self.mocap_published += 1
 
     # ------------------------------------------------------------------ services
+    async def _handle_place(self, request: Place.Request, response: Place.Response) -> Place.Response:
+        try:
+            motion = self.live.place(float(request.x), float(request.y))
+        except WindShaperError as exc:
+            response.success, response.message = False, str(exc)
+            return response
+        arrived = Future()
+        timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
+                                  lambda: arrived.done() or arrived.set_result(True),
+                                  callback_group=self._sweep_group)
+        try:
+            await arrived
+        finally:
+            self.destroy_timer(timer)
+        response.success = True
+        response.message = f'the plate is at ({request.x:+.3f}, {request.y:+.3f}) m'
+        return response
+
     async def _handle_sweep(self, request: Sweep.Request, response: Sweep.Response) -> Sweep.Response:
         limit = self.params.max_sweep_duration_s
         if not 0 < request.duration_s <= limit:

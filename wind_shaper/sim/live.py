@@ -384,6 +384,25 @@ class LiveTunnel:
             self._motion = motion
         return motion
 
+    def place(self, x: float, y: float, t0: float | None = None) -> Motion:
+        """Move the plate from where it is to (x, y) [m] (a transit of at least ``transit_s``
+        within ``max_speed``) and hold it there. Refused (CommandError) while a sweep runs or
+        when (x, y) lies outside the force grid (farther than the sweep disc)."""
+        now = self.clock() if t0 is None else t0
+        target = np.array([x, y], dtype=float)
+        if not np.all(np.isfinite(target)) or np.max(np.abs(target)) > self.half_width - self.grid_step:
+            raise CommandError(f'({x}, {y}) m lies outside the simulated area (|x|, |y| <= '
+                               f'{self.half_width - self.grid_step:.2f} m)')
+        with self._lock:
+            if self.sweeping(now):
+                raise CommandError(f'the plate moves until {self._motion.end - now:.1f} s from now; '
+                                   f'wait for it to stop')
+            here = np.asarray(self.position(now), float)
+            duration = max(self.transit_s, 0.5 * math.pi * float(np.hypot(*(target - here))) / self.max_speed)
+            n = max(int(round(duration * self.path_rate_hz)) + 1, 2)
+            self._motion = Motion(now, self.path_rate_hz, _transit(here, target, n))
+        return self._motion
+
     def stop_sweep(self) -> None:
         """Stop the plate where it is and send it straight back to rest (transit_s)."""
         now = self.clock()
