@@ -1,8 +1,8 @@
 """A designed experiment through the real graph (`wind-shaper up --sim` with a hidden effect in
 the simulated tunnel; MAVLink, Net F/T RDT and mocap over loopback; nothing in-process):
 collect it with the coordinator killed in the middle, calibrate a prior from it, load that into
-the running coordinator, and diagnose the hidden effect from the experiment folder and from the
-bag alike."""
+the running coordinator, diagnose the hidden effect from the experiment folder and from the bag
+alike, add it, load the improved model and iterate with it; and the guided held-plate batch."""
 import json
 import os
 import re
@@ -94,8 +94,8 @@ def test_calibrate_from_the_experiment_and_load_it_into_the_running_coordinator(
     assert code == 0 and 'now uses prior.yaml' in out, out
 
 
-@pytest.mark.timeout(300)
-def test_the_hidden_effect_is_named_from_the_folder_and_from_the_bag_alike(experiment):
+@pytest.mark.timeout(400)
+def test_the_hidden_effect_is_named_from_the_folder_and_from_the_bag_alike_and_added(experiment):
     root, env, *_ = experiment
     findings = {}
     for source in ('runs/exp', 'bags/exp'):
@@ -107,6 +107,15 @@ def test_the_hidden_effect_is_named_from_the_folder_and_from_the_bag_alike(exper
         assert doc['verdict'] == 'found', out
     assert findings['runs/exp'] == findings['bags/exp']
     assert findings['runs/exp'][0] == 'fan_shift[LM2]', findings
+    # add the finding, load the new model into the running coordinator, iterate with it
+    code, out = cli(root, env, 'model', 'add', '--data', 'runs/exp', '--from-diagnosis',
+                    str(root / 'diag-runs' / 'summary.json'), '--save', 'improved.yaml',
+                    '--out', str(root / 'add'))
+    assert code == 0 and 'fan_shift[LM2]' in out, out
+    code, out = cli(root, env, 'set-model', 'improved.yaml', '--wait', '20')
+    assert code == 0 and 'FanShift(LM2' in out, out
+    code, out = cli(root, env, 'iterate', '--wait', '20', timeout_s=200)
+    assert code == 0 and 'RMSE' in out, out
 
 
 @pytest.mark.timeout(400)

@@ -17,9 +17,9 @@ the key points, each with the measurement noise ``noise_sd`` [N] of the diagnosi
   sweeps are picked greedily to maximise log det I (D-optimality), the Jacobians by central
   differences in the parameters.
 
-* **explore**: when the diagnosis found nothing, no hypothesis is there to aim at; the sweeps go
-  where the recorded ones are not (greedy maximin distance in command space, scaled by the
-  range): a space-filling follow-up.
+* **explore**: when the diagnosis found nothing, no hypothesis is there to aim at; the sweeps are
+  a Latin hypercube (every fan's commands spread evenly over the range, independent of the
+  others), the one of many farthest from the sweeps already recorded.
 
 ``goal='auto'`` explores when nothing was found, separates when a finding has a runner-up within
 10 of its BIC, and shrinks otherwise. The candidates are random commands within [u_min, u_max]
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.geometry import TunnelGeometry
-from ..experiment import Design, check_design
+from ..experiment import Design, check_design, design_commands
 from ..model import Term
 from .diagnose import Diagnosis
 from .errors import FitError
@@ -189,20 +189,25 @@ def suggest_sweeps(d: Diagnosis, n_sweeps: int, u_min: float, u_max: float, *, g
                 'separate' if _unsure(d) and refined else 'shrink')
     picked, notes = [], []
     if goal == 'explore':
+        # Latin hypercubes spread every fan's commands evenly (what lets the diagnosis tell the
+        # fans' effects apart); of many, the one farthest from the sweeps already recorded
         recorded = np.vstack([d.train_sweeps_.commands, d.test_sweeps_.commands])
         enabled = np.asarray(geometry.fans.enabled, bool)
         scale = max(u_max - u_min, 1e-9)
+        best_gap, best = -1.0, None
         gap_before = None
-        for _ in range(n_sweeps):
-            seen = np.vstack([recorded] + ([np.asarray(picked)] if picked else []))
-            gaps = np.min(np.linalg.norm((U[:, None, enabled] - seen[None, :, enabled]) / scale, axis=2),
-                          axis=1)
-            gap_before = float(np.max(gaps)) if gap_before is None else gap_before
-            best = int(np.argmax(gaps))
-            picked.append(U[best])
-            notes.append(f'{gaps[best]:.2f} of the range from the nearest recorded or suggested sweep')
+        for k in range(max(pool // max(n_sweeps, 1), 20)):
+            cand = design_commands(len(enabled), n_sweeps, low=u_min, high=u_max,
+                                   seed=seed * 100003 + k, enabled=enabled)
+            gaps = np.min(np.linalg.norm((cand[:, None, enabled] - recorded[None, :, enabled]) / scale,
+                                         axis=2), axis=1)
+            gap_before = float(np.min(gaps)) if gap_before is None else gap_before
+            if np.min(gaps) > best_gap:
+                best_gap, best = float(np.min(gaps)), cand
+        picked = list(best)
+        notes = [f'a Latin hypercube {best_gap:.2f} of the range from the nearest recorded sweep']
         names = ['(no hypothesis yet: new operating points)']
-        value_before, value_after = {'largest_gap': gap_before}, {'largest_gap': float(gaps[best])}
+        value_before, value_after = {'nearest_gap': gap_before}, {'nearest_gap': best_gap}
     elif goal == 'separate':
         names, models = _hypotheses(d, n_hypotheses)
         S = separation(models, U, Z, noise)          # (pool, pairs)
