@@ -7,10 +7,12 @@ Arms:
 
 * held: the paper's calibration batch, 231 plate positions x 20 samples (each enabled fan alone
   at 0-80 % PWM over its hub, and at 50 % at 16 offsets around it), the paper's prior fitted to
-  it (``model.calibration``). It runs on the in-process simulator: the guided held-plate
-  procedure on the graph is not built. Its plate time is counted with a stated model: each
-  position takes ``--hold-s`` (default 5 s: carry the plate there, hold it still within
-  tolerance) plus its 20 samples at the mocap rate.
+  it (``model.calibration``), on the in-process simulator. Its plate time is counted with a
+  stated model: each position takes ``--hold-s`` (default 5 s: carry the plate there, hold it
+  still within tolerance) plus its 20 samples at the rate.
+* held through the graph (``--held-graph``): `wind-shaper calibrate --held --auto` on the same
+  graph, the simulated rig's place service standing in for a motion stage (levels within
+  shaping.yaml's range and points inside the sweep disc only); wall time measured.
 * designed N (3, 6, 12): `wind-shaper collect --design lhs:N` (fans off first and last, a Latin
   hypercube over shaping.yaml's range between) through `wind-shaper up --sim` (MAVLink, Net F/T
   RDT and mocap on loopback; sweeps of ``--sweep-s``), then `wind-shaper calibrate --data` on the
@@ -68,8 +70,10 @@ def shaping(setup, model, seeds, method: str) -> dict:
     return {k: float(np.median(v)) for k, v in at.items()}
 
 
-def graph_designs(setup, counts, sweep_s: float, log) -> dict:
-    """Collect lhs:N through `wind-shaper up --sim` for every N; {N: (SweepSet, wall_s)}."""
+def graph_designs(setup, counts, sweep_s: float, log, held: bool = False) -> dict:
+    """Collect lhs:N through `wind-shaper up --sim` for every N; {N: (SweepSet, wall_s)}; with
+    ``held`` also the guided held-plate batch (`calibrate --held --auto`): {'held': (model,
+    wall_s, points)}."""
     root = Path(tempfile.mkdtemp(prefix='ws-commission-'))
     env = dict(os.environ, ROS_DOMAIN_ID=str(60 + os.getpid() % 30),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
@@ -95,6 +99,17 @@ def graph_designs(setup, counts, sweep_s: float, log) -> dict:
                 raise RuntimeError(f'collect lhs:{n} failed:\n{p.stdout}\n{p.stderr}')
             out[n] = (load_sweeps(root / 'runs' / f'lhs{n}', setup.geometry.fans.names), wall)
             log(f'lhs:{n} through the graph: {wall:.0f} s wall')
+        if held:
+            t0 = time.monotonic()
+            p = subprocess.run([*cli, 'calibrate', '--held', '--auto', '--batch', 'held',
+                                '--out', 'held.yaml', '--wait', '30'], cwd=root, env=env,
+                               capture_output=True, text=True)
+            wall = time.monotonic() - t0
+            if p.returncode != 0:
+                raise RuntimeError(f'calibrate --held failed:\n{p.stdout}\n{p.stderr}')
+            points = int(re.search(r'on (\d+) held points', p.stdout).group(1))
+            out['held'] = (setup.load_model(root / 'held.yaml'), wall, points)
+            log(f'held batch through the graph: {points} points, {wall:.0f} s wall')
     finally:
         os.killpg(up.pid, signal.SIGINT)
         try:
@@ -112,6 +127,9 @@ def main(argv=None) -> int:
     p.add_argument('--sweep-s', type=float, default=10.0, help='designed sweep duration [s]')
     p.add_argument('--in-process', action='store_true', help='designed sweeps on the in-process '
                                                              'simulator instead of the graph')
+    p.add_argument('--held-graph', action='store_true',
+                   help='also run the guided held-plate batch through the graph (calibrate --held '
+                        '--auto, the simulated rig placing the plate; ~10 min more)')
     p.add_argument('--json', type=Path, default=ROOT / 'bench' / 'out' / 'commissioning.json')
     args = p.parse_args(argv)
 
@@ -144,7 +162,14 @@ def main(argv=None) -> int:
             d = make_design(f'lhs:{n}', fans, b.u_min, b.u_max, seed=0)
             designs[n] = (from_sim(setup.make_sim(seed=20 + n), d.commands, n_samples=1000), None)
     else:
-        designs = graph_designs(setup, COUNTS, args.sweep_s, log)
+        designs = graph_designs(setup, COUNTS, args.sweep_s, log, held=args.held_graph)
+    if 'held' in designs:
+        model, wall, points = designs.pop('held')
+        rows.append({'arm': f'held-plate batch through the graph ({points} points)',
+                     'positions': points, 'plate_s': points * (args.hold_s + plan.samples_per_point / 100.0),
+                     'wall_s': wall, 'compute_s': None, 'heldout_rmse_N': heldout_rmse(model, test),
+                     **_shape_cols(setup, model, seeds)})
+        log(f'held through the graph: {rows[-1]}')
     for n, (data, wall) in designs.items():
         t0 = time.perf_counter()
         cal = calibrate_from_sweeps(data, paper_prior(fans))

@@ -170,7 +170,6 @@ def _call_with_resume(session, client, request, latest, args, tty):
     """Call collect and show its feedback; when the coordinator goes silent (it died), wait for
     it to come back and call again (it resumes the experiment). Returns the response, None when
     no answer came, or 'interrupted' after a Ctrl-C (the experiment is then cancelled)."""
-    from std_srvs.srv import Trigger
     resumes = 0
     while True:
         future = client.call_async(request)
@@ -194,14 +193,7 @@ def _call_with_resume(session, client, request, latest, args, tty):
         try:
             session.spin_until(finished_or_gone, limit, on_tick=show)
         except KeyboardInterrupt:
-            if tty:
-                print()
-            cancel = session.node.create_client(Trigger, names.CANCEL_ITERATION)
-            answer = session.call(cancel, Trigger.Request(), args.wait)
-            print('interrupted: ' + (answer.message if answer is not None else
-                                     'the coordinator did not answer the cancel request'),
-                  file=sys.stderr)
-            session.spin_until(future.done, 30.0)
+            session.interrupt(future, args.wait, tty, 30.0)
             return 'interrupted'
         if tty:
             print('\r' + ' ' * 100 + '\r', end='')

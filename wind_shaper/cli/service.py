@@ -80,6 +80,18 @@ class _Session:
             return None
         return future.result()
 
+    def interrupt(self, future, wait_s: float, tty: bool, grace_s: float) -> None:
+        """Ctrl-C during a long call: ask the coordinator to cancel what runs, say what it
+        answered, and give the call ``grace_s`` [s] to end."""
+        from std_srvs.srv import Trigger
+        if tty:
+            print()
+        cancel = self.node.create_client(Trigger, names.CANCEL_ITERATION)
+        answer = self.call(cancel, Trigger.Request(), wait_s)
+        print('interrupted: ' + (answer.message if answer is not None else
+                                 'the coordinator did not answer the cancel request'), file=sys.stderr)
+        self.spin_until(future.done, grace_s)
+
     def latest_status(self):
         """Subscribe to the latched status; returns a one-element list updated in place."""
         from wind_shaper_msgs.msg import IterationStatus
@@ -129,7 +141,6 @@ def format_status(s) -> str:
 
 # ---------------------------------------------------------------------------------- commands
 def _cmd_iterate(args) -> int:
-    from std_srvs.srv import Trigger
     from wind_shaper_msgs.srv import RunIteration
     if args.count < 1:
         print('--count must be >= 1', file=sys.stderr)
@@ -170,14 +181,7 @@ def _cmd_iterate(args) -> int:
             try:
                 session.spin_until(finished_or_gone, limit, on_tick=show)
             except KeyboardInterrupt:
-                if tty:
-                    print()
-                cancel = session.node.create_client(Trigger, names.CANCEL_ITERATION)
-                answer = session.call(cancel, Trigger.Request(), args.wait)
-                print('interrupted: ' + (answer.message if answer is not None else
-                                         'the coordinator did not answer the cancel request'),
-                      file=sys.stderr)
-                session.spin_until(future.done, 10.0)
+                session.interrupt(future, args.wait, tty, 10.0)
                 return 130
             if tty:
                 print('\r' + ' ' * 72 + '\r', end='')

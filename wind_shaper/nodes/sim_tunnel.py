@@ -260,20 +260,25 @@ class SimTunnel(Node):
         self.mocap_published += 1
 
     # ------------------------------------------------------------------ services
+    async def _motion_end(self, motion) -> None:
+        """Return when ``motion`` ends: awaited in a coroutine, so the executor's one thread
+        serves diagnostics while the plate moves."""
+        ended = Future()
+        timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
+                                  lambda: ended.done() or ended.set_result(True),
+                                  callback_group=self._sweep_group)
+        try:
+            await ended
+        finally:
+            self.destroy_timer(timer)
+
     async def _handle_place(self, request: Place.Request, response: Place.Response) -> Place.Response:
         try:
             motion = self.live.place(float(request.x), float(request.y))
         except WindShaperError as exc:
             response.success, response.message = False, str(exc)
             return response
-        arrived = Future()
-        timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
-                                  lambda: arrived.done() or arrived.set_result(True),
-                                  callback_group=self._sweep_group)
-        try:
-            await arrived
-        finally:
-            self.destroy_timer(timer)
+        await self._motion_end(motion)
         response.success = True
         response.message = f'the plate is at ({request.x:+.3f}, {request.y:+.3f}) m'
         return response
@@ -293,15 +298,7 @@ class SimTunnel(Node):
             response.message = str(exc)
             return response
         self.get_logger().info(f'sweep of {request.duration_s:g} s started')
-        # A coroutine, so the executor's one thread serves diagnostics while the plate moves.
-        ended = Future()
-        timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
-                                  lambda: ended.done() or ended.set_result(True),
-                                  callback_group=self._sweep_group)
-        try:
-            await ended
-        finally:
-            self.destroy_timer(timer)
+        await self._motion_end(motion)
         response.duration_s = time.monotonic() - t_start
         if self._stop.is_set():
             self.live.stop_sweep()
