@@ -618,6 +618,9 @@ def test_collect_runs_every_row_through_the_fans_then_turns_them_off(graph, setu
     for row in design.commands:   # every row reached the fans, in order
         assert np.any(np.all(np.isclose(seen, row), axis=1))
     assert wait_until(lambda: np.allclose(graph.rig.commands[-1], 0.0), timeout=3.0)
+    # the iteration status tells the truth about the fans: off
+    assert wait_until(lambda: graph.status() is not None and np.allclose(graph.status().pwm, 0.0),
+                      timeout=3.0)
     assert wait_until(lambda: len(graph.experiment_sweeps) == 4, timeout=3.0)
     assert [m.iteration for m in graph.experiment_sweeps] == [0, 1, 2, 3]
     states = {m.state for m in graph.experiment_statuses}

@@ -407,6 +407,7 @@ class CoordinatorNode(Node):
         with self._lock:
             self._running = False
             self._counting = False
+        self._publish_status()   # the commands in force may have changed (an experiment: off)
 
     def poke(self) -> None:
         """A message a wait may depend on arrived (the waits re-check their condition)."""
