@@ -88,7 +88,7 @@ def main(argv=None) -> int:
                     lag = arrival - (t_bag - t_bag[0]) / rate
                     err.extend(np.abs(lag - np.median(lag)))
             late_ms = 1e3 * np.asarray(late)
-            e = (f'{1e3 * np.median(err):.1f} | {1e3 * np.percentile(err, 90):.1f}' if err else '- | -')
+            e = (f'{1e3 * np.median(err):.2f} | {1e3 * np.percentile(err, 90):.2f}' if err else '- | -')
             print(f'| {rate:g} | {args.repeats} | {np.median(late_ms):.1f} | {np.percentile(late_ms, 90):.1f} | '
                   f'{np.max(late_ms):.1f} | {e} |')
     finally:
