@@ -381,9 +381,9 @@ class Diagnosis:
                 f'data per-fan effects (a fan\'s gain, width, landing point) are poorly identified: a '
                 f'held-out sweep at the same commands cannot tell an effect from a patch of the residual '
                 f'at this one operating point, so no finding is reported. Record instead 8-12 sweeps of '
-                f'~1000 samples at varied commands: each fan spread over 0-90 % PWM independently of the '
-                f'others, a few sweeps with single fans low or off (the design `--sim` uses; see '
-                f'docs/workbench.md, "Data").')
+                f'~1000 samples at varied commands: each fan spread over its range independently of the '
+                f'others, the first and last with the fans off: on the node graph `wind-shaper collect '
+                f'--design lhs:12 --out NAME` does that (see docs/workbench.md, "Data").')
 
     def summary(self) -> str:
         """The verdict in plain words (with the warning about data whose commands barely vary)."""
