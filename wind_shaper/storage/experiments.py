@@ -29,7 +29,7 @@ import yaml
 from ..core.errors import RunFolderError
 from ..core.tunnel import Sweep
 from ..experiment.design import Design, write_design
-from .runstore import _atomic_write_text, _floats, _json
+from .runstore import _atomic_write_text, _floats, _json, folder_in, load_sweep, save_sweep
 
 FORMAT_VERSION = 1
 STORED, FLAGGED, PENDING = 'stored', 'flagged', 'pending'
@@ -88,19 +88,6 @@ class StoredSweep:
     record: dict
 
 
-def _save_sweep(path: Path, sweep: Sweep) -> None:
-    tmp = path.with_name(f'.{path.name}.tmp')
-    with open(tmp, 'wb') as fh:
-        np.savez_compressed(fh, t=sweep.times, x=sweep.positions[:, 0], y=sweep.positions[:, 1],
-                            force=sweep.forces, pwm=sweep.pwm)
-    tmp.replace(path)
-
-
-def _load_sweep(path: Path) -> Sweep:
-    with np.load(path) as z:
-        return Sweep(np.column_stack([z['x'], z['y']]), z['force'], z['t'], z['pwm'])
-
-
 class ExperimentStore:
     """An experiment folder (see the module docstring). Open with ``ExperimentStore.open``."""
 
@@ -116,9 +103,7 @@ class ExperimentStore:
         """Create ``root/name/`` for ``plan``, or reopen it. Reopening with a plan needs the same
         fans, key points and commands (an experiment is resumed, never silently changed);
         RunFolderError says what differs and what to do."""
-        if not name or Path(name).name != name or name in ('.', '..'):
-            raise RunFolderError(f'experiment name {name!r} must be a plain folder name (no slashes)')
-        folder = Path(root) / name
+        folder = folder_in(root, name, 'experiment')
         marker = folder / MARKER
         if marker.is_file():
             stored = ExperimentPlan.from_yaml(marker)
@@ -214,7 +199,7 @@ class ExperimentStore:
                                  f'the design says {np.round(self.plan.commands[i], 4).tolist()}')
         d = self.row_dir(i)
         d.mkdir(parents=True, exist_ok=True)
-        _save_sweep(d / 'sweep.npz', sweep)
+        save_sweep(d / 'sweep.npz', sweep)
         _atomic_write_text(d / 'record.json', _json(self._info(i, sweep, info)))
         return d
 
@@ -227,7 +212,7 @@ class ExperimentStore:
         takes = self._flagged_takes(i)
         n = int(takes[-1].stem.split('-')[1]) + 1 if takes else 1
         if sweep is not None and len(sweep):
-            _save_sweep(d / f'flagged-{n}.npz', sweep)
+            save_sweep(d / f'flagged-{n}.npz', sweep)
         path = d / f'flagged-{n}.json'
         _atomic_write_text(path, _json(self._info(i, sweep, info)))
         return path
@@ -241,7 +226,7 @@ class ExperimentStore:
                 continue
             try:
                 record = json.loads((d / 'record.json').read_text())
-                sweep = _load_sweep(d / 'sweep.npz')
+                sweep = load_sweep(d / 'sweep.npz')
             except (OSError, ValueError, KeyError) as exc:
                 raise RunFolderError(f'row {i} of {self.folder} is not readable ({exc}): move '
                                      f'{d} away to sweep it again') from None

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.errors import RunFolderError
 from ..core.tunnel import Measurements
-from .runstore import _atomic_write_text
+from .runstore import _atomic_write_text, folder_in
 
 RECORDED, SKIPPED = 'recorded', 'skipped'
 
@@ -37,9 +37,7 @@ class HeldBatch:
     def open(cls, root, name: str, fan_names: Sequence[str], points: list) -> 'HeldBatch':
         """Create the batch, or reopen it when it holds the same points (else RunFolderError:
         a batch is resumed, never silently changed)."""
-        if not name or Path(name).name != name or name in ('.', '..'):
-            raise RunFolderError(f'batch name {name!r} must be a plain folder name (no slashes)')
-        folder = Path(root) / name
+        folder = folder_in(root, name, 'batch')
         doc = {'wind_shaper_held_batch': 1, 'fan_names': list(fan_names),
                'points': [{'label': p['label'], 'pwm': [float(u) for u in p['pwm']],
                            'x': float(p['x']), 'y': float(p['y'])} for p in points]}

@@ -53,6 +53,29 @@ def _atomic_write_text(path: Path, text: str) -> None:
     _atomic_write_bytes(path, text.encode())
 
 
+def save_sweep(path: Path, sweep: Sweep) -> None:
+    """A sweep's aligned pairs as ``.npz``: t [s], x, y [m, tunnel frame], force [N], pwm
+    [fraction]; written to a temporary name and renamed."""
+    tmp = path.with_name(f'.{path.name}.tmp')
+    with open(tmp, 'wb') as fh:
+        np.savez_compressed(fh, t=sweep.times, x=sweep.positions[:, 0], y=sweep.positions[:, 1],
+                            force=sweep.forces, pwm=sweep.pwm)
+    os.replace(tmp, path)
+
+
+def load_sweep(path: Path) -> Sweep:
+    """The sweep ``save_sweep`` wrote."""
+    with np.load(path) as z:
+        return Sweep(np.column_stack([z['x'], z['y']]), z['force'], z['t'], z['pwm'])
+
+
+def folder_in(root, name: str, what: str) -> Path:
+    """``root/name`` for a store's folder; RunFolderError unless ``name`` is a plain folder name."""
+    if not name or Path(name).name != name or name in ('.', '..'):
+        raise RunFolderError(f'{what} name {name!r} must be a plain folder name (no slashes)')
+    return Path(root) / name
+
+
 def _plain(value):
     """json.dumps fallback: numpy arrays and scalars as lists and numbers, anything else as text
     (an update rule's ``info`` may hold them)."""
@@ -171,9 +194,7 @@ class RunStore:
         """Create ``root/name/`` (needs ``info`` and ``initial_pwm``, the commands of iteration 0)
         or reopen it. When reopening with ``info``, the folder must be for the same fans and key
         points, else ``RunFolderError`` (a run cannot continue on another tunnel)."""
-        if not name or Path(name).name != name or name in ('.', '..'):
-            raise RunFolderError(f'run name {name!r} must be a plain folder name (no slashes)')
-        folder = Path(root) / name
+        folder = folder_in(root, name, 'run')
         run_file = folder / 'run.yaml'
         if run_file.is_file():
             stored = RunInfo.from_yaml(run_file)
@@ -290,10 +311,7 @@ class RunStore:
             'model': data.model, 'info': dict(data.info),
         }
         _atomic_write_text(partial / 'record.json', _json(record))
-        sw = data.sweep
-        with open(partial / 'sweep.npz', 'wb') as fh:
-            np.savez_compressed(fh, t=sw.times, x=sw.positions[:, 0], y=sw.positions[:, 1],
-                                force=sw.forces, pwm=sw.pwm)
+        save_sweep(partial / 'sweep.npz', data.sweep)
         _atomic_write_text(partial / 'field.json', _json({
             'mean_N': _floats(est.mean), 'std_N': _floats(est.std),
             'key_distance_m': _floats(est.key_distance), 'target_N': _floats(data.target_values),
@@ -325,8 +343,7 @@ class RunStore:
             folder = self.iteration_dir(k)
             try:
                 fld = json.loads((folder / 'field.json').read_text())
-                with np.load(folder / 'sweep.npz') as z:
-                    sweep = Sweep(np.column_stack([z['x'], z['y']]), z['force'], z['t'], z['pwm'])
+                sweep = load_sweep(folder / 'sweep.npz')
             except (OSError, ValueError, KeyError) as exc:
                 raise RunFolderError(f'{folder} is incomplete ({exc}): the run folder was edited '
                                      f'by hand or damaged') from None
