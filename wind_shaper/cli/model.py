@@ -162,7 +162,7 @@ def _cmd_diagnose(args) -> int:
                          truth=_hidden(args) if args.sim else (),
                          suggest=args.suggest, goal=args.goal, bounds=(bounds.u_min, bounds.u_max))
     print(d.summary())
-    if args.suggest:
+    if d.suggestion_ is not None:
         s = d.suggestion_
         print(f'suggested {len(s.design)} sweeps ({s.goal}: {s.outcome_text()}); saved as '
               f'{out / SUGGESTED_DESIGN}')
@@ -183,7 +183,8 @@ def _cmd_add(args) -> int:
     if args.from_diagnosis:
         found = _diagnosis_findings(args.from_diagnosis)
         if not found and not additions:
-            raise WindShaperError(f'nothing to add: the diagnosis in {args.from_diagnosis} found no effect '
+            raise WindShaperError(f'nothing to add: the diagnosis in {args.from_diagnosis} found no effect and '
+                                  f'offered no discrepancy term '
                                   f'to add; to add one anyway, name it with --effect NAME (a candidate '
                                   f'such as fan_gain[HM2] or swirl, or a term kind)')
         additions += found
@@ -227,7 +228,12 @@ def _diagnosis_findings(path) -> list:
     if not isinstance(doc, dict) or doc.get('command') != 'diagnose':
         raise WindShaperError(f'--from-diagnosis {path} is not the summary.json of `wind-shaper model '
                               f'diagnose`')
-    return [(f['candidate'], f['params']) for f in doc.get('findings', [])]
+    found = [(f['candidate'], f['params']) for f in doc.get('findings', [])]
+    if (doc.get('formula') or {}).get('offered'):
+        found.append(('formula', {}))  # refitted on the data given, after the findings
+    elif (doc.get('discrepancy') or {}).get('offered'):
+        found.append(('discrepancy', {}))
+    return found
 
 
 # -- argument layer ---------------------------------------------------------------------------------
@@ -302,10 +308,13 @@ def register(subparsers) -> None:
     p = sub.add_parser('add', help='add effects to the model, refit, before/after report, new model file')
     _common(p)
     p.add_argument('--effect', action='append', default=[], metavar='NAME[:k=v,...]',
-                   help='a library candidate (fan_gain[HM2], swirl, wall_layer, ...) or a registered '
-                        'term kind (your own, with --plugin); repeat for more')
+                   help='a library candidate (fan_gain[HM2], swirl, wall_layer, ...), a registered '
+                        'term kind (your own, with --plugin), discrepancy (a Gaussian process of '
+                        'what the rest leaves, fitted last; no physics) or formula (a sparse formula '
+                        'of it); repeat for more')
     p.add_argument('--from-diagnosis', type=Path, default=None, metavar='SUMMARY_JSON',
-                   help='add the findings of `model diagnose` (its summary.json)')
+                   help='add the findings of `model diagnose` (its summary.json), and the formula or '
+                        'discrepancy term it offered for the rest')
     p.add_argument('--save', type=Path, default=None, help='new model file (default: <out>/model.yaml)')
     p.add_argument('--closed-loop', default=None, metavar='TARGET',
                    help='also run the shaping loop on the simulated tunnel with the old and the new '

@@ -15,6 +15,7 @@ from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batch
 from .fan_effects import (FanCurve, FanElongation, FanGain, FanShape, FanShift, FanWidth,
                           FanWrapper)
 from .flow_effects import Background, DeadBand, JetInteraction, Swirl, SwirlQuadratic, WallLayer
+from .discrepancy import MODE_NAMES, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
 from .calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
@@ -33,6 +34,8 @@ __all__ = [
     'FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer',
+    # discrepancy: what the library does not explain, without physics
+    'Discrepancy', 'FieldFormula', 'command_features', 'feature_words', 'MODE_NAMES',
     # modelfile: model files
     'save_model', 'load_model', 'model_from_text', 'FORMAT_VERSION',
     # plugins: user terms, families and simulator effects

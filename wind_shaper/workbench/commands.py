@@ -19,6 +19,8 @@ from ..experiment import write_design
 from ..model import TERMS, Term, Wrapper, save_model, term_label, walk
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
+from .discrepancy import describe_discrepancy, fit_discrepancy
+from .formula import fit_formula
 from .errors import CandidateError
 from .fitting import FitResult, fit_model
 from .library import Library, _pm, apply_candidate, candidate_for_hidden_effect, default_library
@@ -180,6 +182,9 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
     sweeps (``suggest.suggest_sweeps`` with ``goal`` within ``bounds`` = (u_min, u_max)), saved
     as ``suggested_design.csv`` and kept as ``d.suggestion_``."""
     d = (diagnosis or Diagnosis(library)).fit(model, data, geometry)
+    if suggest <= 0 and d.undecided_ is not None and d.undecided_.more is not None:
+        # a promising candidate short of the bar: the sweeps that would decide it, as a design
+        suggest, goal = min(d.undecided_.more, 12), 'separate'
     d.suggestion_ = (suggest_sweeps(d, suggest, bounds[0], bounds[1], goal=goal)
                      if suggest > 0 else None)
     rep = Report('Model diagnosis')
@@ -296,6 +301,13 @@ def _apply_additions(model: Term, additions: Sequence, geometry: TunnelGeometry,
     return model, added
 
 
+def _residual_term(item) -> str:
+    """'discrepancy' or 'formula' when an addition asks for a term fitted to the residual (not a
+    candidate), else ''."""
+    name = item if isinstance(item, str) else item[0]
+    return name if name in ('discrepancy', 'formula') else ''
+
+
 def _added_parameters(fit: FitResult, added: list) -> list[dict]:
     """Each addition's own parameters as refitted in ``fit``: [{'effect', 'start', 'fitted':
     {parameter: {'value', 'std'}}}] (free parameters only; values and 1-sigma as lists for
@@ -363,12 +375,26 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
     callable ``(models) -> LoopComparison`` (the CLI runs the simulator's shaping loop);
     noise_sd [N]: the measurement noise, when the sweeps are too short to estimate it."""
     data.check_fans(geometry.fans.names)
-    new, added = _apply_additions(model, additions, geometry, library)
+    residual_terms = [_residual_term(a) for a in additions if _residual_term(a)]
+    new, added = _apply_additions(model, [a for a in additions if not _residual_term(a)], geometry,
+                                  library)
     train, test = data.split(test_fraction)
     fd = train.fit_data(cell)
     ho = HeldOut(test)
     old_fit = fit_model(model, fd, free=fit_mask(model), max_nfev=80)
     new_fit = fit_model(new, fd, free=fit_mask(new), max_nfev=80)
+    disc_words = []
+    for kind in residual_terms:  # fitted last: they take only what the named effects leave
+        if kind == 'formula':
+            term = fit_formula(new_fit.model, fd, geometry).term
+            disc_words.append(f'The formula: residual = {term.formula()}.')
+        else:
+            dfit = fit_discrepancy(new_fit.model, fd, geometry, note=f'fitted to the residual of {data.source}')
+            disc_words += describe_discrepancy(dfit, train.commands, geometry, model=new_fit.model)
+            term = dfit.term
+        new = new_fit.model + term
+        new_fit = fit_model(new, fd, free=fit_mask(new), max_nfev=20)
+        added.append((kind, {}, term_label(term)))
     ho.noise_sd = noise_sd if noise_sd is not None else ho.estimate_noise(old_fit.model)
     before, after = ho.evaluate(old_fit.model), ho.evaluate(new_fit.model)
     tf = test.fit_data(cell)
@@ -390,6 +416,11 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
              + (f'The noise level is {floor:.3f} N: half the measurement noise ({ho.noise_sd:.3f} N per '
                 f'sample) or the resolution of the held-out model error, whichever is larger.'
                 if noise_known else 'The measurement noise is unknown (give --noise-sd).')
+             + (f'\n\nThe {" and ".join(residual_terms)} term names no physics: it is fitted to what '
+                f'the rest of the model leaves on the training sweeps (discrepancy: a Gaussian process '
+                f'over position and the fans\' commands; formula: a sparse sum of spatial modes x command '
+                f'features), so the loop can shape with it while the physics is still unknown. '
+                + ' '.join(disc_words) if disc_words else '')
              + f'\n\nNew model: {new_fit.model!r}')
     rep.table(['', 'held-out model error [N]', 'held-out RMSE [N]', 'R²', 'largest error [N]', 'training BIC'],
               [['before', _fmt(before['model_rmse']), _fmt(before['raw'].rmse), _fmt(before['raw'].r2, 4),
@@ -420,6 +451,7 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
         rep.text(f'New model written to {save}; give it to the loop with `wind-shaper shape --model {save}`.',
                  heading='Model file')
     rep.summary = {'command': 'add', 'data': data.source, 'added': [_added_text(a) for a in added_params],
+                   'discrepancy': disc_words or None,
                    'added_parameters': added_params, 'change': change, 'noise_level_N': floor,
                    'below_noise_level': below,
                    'before': {'model': repr(old_fit.model), 'heldout_model_rmse_N': before['model_rmse'],

@@ -53,8 +53,11 @@ from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
 from .consistency import SweepCheck, check_across_sweeps
 from .data import FitData, SweepSet
+from .discrepancy import describe_outside, outside_text
+from .enough import undecided
+from .formula import fit_formula, formula_text
 from .errors import FitError
-from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std
+from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
 
@@ -143,7 +146,7 @@ class Diagnosis:
                  min_dbic: float = 10.0, min_z: float = 3.0, material: float = 0.5,
                  max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
                  noise_sd: float | None = None, min_spread: float = 0.10,
-                 check_sweeps: bool = True):
+                 check_sweeps: bool = True, describe_outside: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -151,6 +154,7 @@ class Diagnosis:
         self.max_effects, self.refine, self.max_nfev = max_effects, refine, max_nfev
         self.noise_sd = noise_sd
         self.check_sweeps = check_sweeps
+        self.describe_outside = describe_outside
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -210,7 +214,7 @@ class Diagnosis:
             reasons.append(f'held-out error {_change_text(t.gain)} (needs to fall >= {100 * self.min_gain:.0f} %)')
         if t.dbic > -self.min_dbic:
             reasons.append(f'BIC {_bic_text(t.dbic)} (needs to fall >= {self.min_dbic:g})')
-        z = _z_score(t.params, t.std, t.candidate.null)
+        z = z_from_null(t.params, t.std, t.candidate.null)
         if z is not None and z < self.min_z:
             reasons.append(f'parameter only {z:.1f} standard errors from no effect (< {self.min_z:g})')
         t.reasons = reasons
@@ -300,6 +304,16 @@ class Diagnosis:
             self.verdict_ = 'explained'
         else:
             self.verdict_ = 'unexplained'
+        # what the library leaves: a discrepancy model of the residual, described
+        self.undecided_ = undecided(self)
+        # and a short formula for it, when one predicts the held-out sweeps
+        self.discrepancy_ = self.formula_ = None
+        if (self.describe_outside and not self.low_spread_
+                and self.final_rmse_ >= self.material * self.noise_sd_):
+            self.discrepancy_ = describe_outside(self.final_.model, self.train_, self.heldout_,
+                                                 self.train_sweeps_.commands, geometry)
+            self.formula_ = fit_formula(self.final_.model, self.train_, geometry).judge(
+                self.final_.model, self.heldout_, min_gain=self.min_gain)
         return self
 
     def _rebuild(self, steps: list) -> FitResult:
@@ -405,14 +419,23 @@ class Diagnosis:
                           else 'does not lower it')
                 more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
             return (f'No candidate explains the residual: the held-out model error stays at '
-                    f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{more} '
-                    f'See the residual\'s structure below.')
+                    f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N).{more}'
+                    + (' ' + self.undecided_.text() if self.undecided_ is not None else '')
+                    + self._outside_text() + ' See the residual\'s structure below.')
         lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(self.steps_)]
         tail = f'\n{self._demoted_text()}' if self.demoted_ else ''
         return (f'Found {len(self.steps_)} effect(s); held-out model error '
                 f'{self.baseline_rmse_:.3f} N -> {self.final_rmse_:.3f} N '
                 f'({100 * (1 - self.final_rmse_ / self.baseline_rmse_):.0f} % lower):\n' + '\n'.join(lines)
-                + tail)
+                + tail + ('\n' + self.undecided_.text() if self.undecided_ is not None else '')
+                + ('\n\nThe rest is still material.' + self._outside_text()
+                   if self.discrepancy_ is not None else ''))
+
+    def _outside_text(self) -> str:
+        if self.discrepancy_ is None:
+            return ''
+        formula = formula_text(self.formula_) if self.formula_ is not None else ''
+        return ' ' + (formula + ' ' if formula else '') + outside_text(self.discrepancy_)
 
     def _demoted_text(self) -> str:
         """'Partly explained by X, but not reported: ...' for effects that failed the check
@@ -435,6 +458,9 @@ class Diagnosis:
                       'heldout_model_rmse_N': self.final_rmse_, 'heldout_raw_rmse_N': self.final_raw_},
             'findings': [t.to_json() for t in self.steps_],
             'not_reported': [t.to_json() for t in self.demoted_],
+            'discrepancy': self.discrepancy_.to_json() if self.discrepancy_ is not None else None,
+            'formula': self.formula_.to_json() if self.formula_ is not None else None,
+            'undecided': self.undecided_.to_json() if self.undecided_ is not None else None,
             'rankings': [[t.to_json() for t in r] for r in self.rankings_],
             'guard': {'min_gain': self.min_gain, 'min_dbic': self.min_dbic, 'min_z': self.min_z,
                       'material': self.material, 'min_spread': self.min_spread},
@@ -482,20 +508,3 @@ def _node(model, label):
         if term_label(n) == label:
             return n
     return None
-
-
-def _z_score(params: dict, std: dict, null: dict):
-    """Largest |value - null| / std over the parameters with a null value (None if none)."""
-    zs = []
-    for name, ref in null.items():
-        if name not in params:
-            continue
-        v = np.atleast_1d(np.asarray(params[name], float))
-        s = np.atleast_1d(np.asarray(std.get(name, [np.nan] * len(v)), float))
-        r = np.broadcast_to(np.asarray(ref, float), v.shape)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            z = np.abs(v - r) / s
-        z = z[np.isfinite(z)]
-        if len(z):
-            zs.append(float(z.max()))
-    return max(zs) if zs else None

@@ -22,7 +22,7 @@ from ..model import Term, fan_landing, fan_part_batched, fan_thrust_batched, fan
 from .data import FitData
 from .errors import FitError
 
-__all__ = ['Frozen', 'FitResult', 'fit_model', 'jackknife_std', 'bic']
+__all__ = ['Frozen', 'FitResult', 'fit_model', 'jackknife_std', 'bic', 'z_from_null']
 
 
 class Frozen(Term):
@@ -209,3 +209,20 @@ def jackknife_std(model: Term, data: FitData, free, *, max_nfev: int = 30) -> np
     est = np.array(est)
     g = len(sweeps)
     return np.sqrt((g - 1) / g * np.sum((est - est.mean(axis=0)) ** 2, axis=0))
+
+
+def z_from_null(params: dict, std: dict, null: dict):
+    """Largest |value - null| / std over the parameters with a null value (None if none)."""
+    zs = []
+    for name, ref in null.items():
+        if name not in params:
+            continue
+        v = np.atleast_1d(np.asarray(params[name], float))
+        s = np.atleast_1d(np.asarray(std.get(name, [np.nan] * len(v)), float))
+        r = np.broadcast_to(np.asarray(ref, float), v.shape)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            z = np.abs(v - r) / s
+        z = z[np.isfinite(z)]
+        if len(z):
+            zs.append(float(z.max()))
+    return max(zs) if zs else None

@@ -1,0 +1,127 @@
+"""The discrepancy model: a term with no physics that describes, and can stand in for, what the
+candidate library does not explain (wind_shaper.model.discrepancy, workbench.discrepancy)."""
+import numpy as np
+import pytest
+
+from wind_shaper.core.errors import ConfigError
+from wind_shaper.model import (Discrepancy, FieldFormula, finite_difference_jacobian, load_model,
+                               save_model, term_from_dict)
+from wind_shaper.workbench.commands import add_command
+from wind_shaper.workbench.discrepancy import describe_map, disc_grid
+
+
+def _term(fans, rng):
+    centres = disc_grid(0.36, 0.1)
+    features = ['one', 'thrust', 'balance', f'fan:{fans.names[1]}']
+    return Discrepancy(fans, centres, 0.08, features, rng.normal(0, 0.2, (len(centres), len(features))))
+
+
+def test_discrepancy_jacobian_matches_finite_differences(wb_setup, rng):
+    fans = wb_setup.geometry.fans
+    term = _term(fans, rng)
+    Z = rng.uniform(-0.3, 0.3, (40, 2))
+    U = rng.uniform(0.1, 0.9, fans.n_fans)
+    np.testing.assert_allclose(term.jacobian(U, Z), finite_difference_jacobian(term, U, Z), atol=1e-6)
+    formula = FieldFormula(fans, ['x', f'bump:{fans.names[0]}'], ['thrust', f'fan:{fans.names[0]}'],
+                           [[0.2, 0.0], [0.0, -0.5]])
+    np.testing.assert_allclose(formula.jacobian(U, Z), finite_difference_jacobian(formula, U, Z), atol=1e-6)
+    assert 'x T' in formula.formula() and f'bump over {fans.names[0]}' in formula.formula()
+
+
+def test_discrepancy_round_trips_through_a_model_file(wb_setup, reference, rng, tmp_path):
+    fans = wb_setup.geometry.fans
+    model = reference + _term(fans, rng)
+    save_model(tmp_path / 'm.yaml', model)
+    back = load_model(tmp_path / 'm.yaml', fans)
+    Z = rng.uniform(-0.3, 0.3, (25, 2))
+    U = rng.uniform(0.0, 0.9, fans.n_fans)
+    np.testing.assert_allclose(back(U, Z), model(U, Z), atol=1e-9)
+    assert len(back.theta) == len(reference.theta)  # nothing of it is moved by a refit
+
+
+def test_discrepancy_refuses_bad_input_with_what_to_do(wb_setup):
+    fans = wb_setup.geometry.fans
+    with pytest.raises(ConfigError, match='unknown command feature .fan:XX.*fan:NAME'):
+        Discrepancy(fans, [[0, 0]], 0.05, ['fan:XX'], [[1.0]])
+    with pytest.raises(ConfigError, match='needs 1 x 2 weights'):
+        Discrepancy(fans, [[0, 0]], 0.05, ['one', 'thrust'], [1.0])
+    with pytest.raises(ConfigError, match='width must be > 0'):
+        Discrepancy(fans, [[0, 0]], 0.0, ['one'], [1.0])
+    with pytest.raises(Exception, match='unknown spatial mode'):
+        term_from_dict({'kind': 'field_formula', 'modes': ['spiral'], 'features': ['one'],
+                        'weights': [1.0]}, fans)
+
+
+def test_maps_are_put_in_words(wb_setup):
+    geo = wb_setup.geometry
+    grid = disc_grid(geo.sweep_radius, 0.02)
+    x, y = grid.T
+    assert describe_map(np.full(len(grid), -0.3), grid, geo).startswith('about uniform')
+    tilt = describe_map(0.5 * (np.cos(np.radians(120)) * x + np.sin(np.radians(120)) * y), grid, geo)
+    assert tilt.startswith('a tilt') and 'towards 120 deg' in tilt
+    ring = describe_map(np.exp(-(np.hypot(x, y) - 0.18) ** 2 / (2 * 0.03 ** 2)), grid, geo)
+    assert ring.startswith('radial') and 'ring at r = 0.1' in ring
+    hub = geo.fans.positions[geo.fans.names.index('HM2')]
+    patch = describe_map(-0.4 * np.exp(-np.sum((grid - hub) ** 2, axis=1) / (2 * 0.04 ** 2)), grid, geo)
+    assert patch.startswith('local') and 'over fan HM2' in patch and 'model is high' in patch
+
+
+# -- on the simulated tunnel with physics the library lacks (DATA_SEED, 12 sweeps) ----------------
+
+def _words(d):
+    assert d.discrepancy_ is not None, d.summary()
+    return ' '.join(d.discrepancy_.words)
+
+
+@pytest.mark.slow
+def test_a_blocked_patch_is_described_as_a_fraction_of_the_force_where_it_is(diagnosed):
+    d, (effect,) = diagnosed('honeycomb_blockage')
+    assert d.steps_ == []
+    text = _words(d)
+    assert 'fixed fraction of the local force' in text and 'model is high there' in text
+    fit = d.discrepancy_
+    assert fit.readings['fraction']['r2'] >= 0.6
+    centre = [float(v) for v in text.split('centred at (')[1].split(')')[0].split(',')]
+    assert np.hypot(centre[0] - effect.x, centre[1] - effect.y) < 0.04, text
+    assert fit.offered and fit.heldout_after <= 0.8 * fit.heldout_before
+    assert 'model add --effect discrepancy' in d.summary()
+
+
+@pytest.mark.slow
+def test_a_room_draft_is_described_as_a_displaced_field(diagnosed):
+    d, (effect,) = diagnosed('side_draft')
+    text = _words(d)
+    assert 'whole field displaced' in text, text
+    dx, dy = d.discrepancy_.readings['displacement']['shift_m']
+    angle = np.degrees(np.arctan2(dy, dx) - np.arctan2(effect.dy, effect.dx))
+    assert abs((angle + 180) % 360 - 180) < 25, (dx, dy)
+
+
+@pytest.mark.slow
+def test_a_starved_inlet_is_described_as_growing_with_the_total_thrust(diagnosed):
+    d, _ = diagnosed('plenum_starvation')
+    text = _words(d)
+    assert 'grows with the total thrust of all fans: about uniform over the tunnel (the model is high' in text
+    assert max(d.discrepancy_.shares, key=d.discrepancy_.shares.get) == 'thrust'
+
+
+@pytest.mark.slow
+def test_nothing_is_described_when_the_model_explains_the_data(diagnosed):
+    assert diagnosed()[0].discrepancy_ is None
+    d, _ = diagnosed('weak_fan')
+    assert d.steps_ and d.discrepancy_ is None, d.summary()
+
+
+@pytest.mark.slow
+def test_adding_the_discrepancy_lowers_the_heldout_error_and_saves_a_loadable_model(
+        wb_setup, reference, sim_data, tmp_path):
+    data, _ = sim_data('stand_wake')
+    out = add_command(reference, ['discrepancy'], data, wb_setup.geometry, tmp_path / 'add',
+                      save=tmp_path / 'model.yaml')
+    assert out.after['model_rmse'] <= 0.7 * out.before['model_rmse'], out.change
+    assert [a['effect'] for a in out.added] == ['discrepancy']
+    report = (tmp_path / 'add' / 'report.md').read_text()
+    assert 'names no physics' in report and 'fixed fraction of the local force' in report
+    back = load_model(tmp_path / 'model.yaml', wb_setup.geometry.fans)
+    U, Z = data.commands[3], data.sweeps[3].positions[:50]
+    np.testing.assert_allclose(back(U, Z), out.model(U, Z), atol=1e-9)

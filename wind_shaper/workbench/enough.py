@@ -1,0 +1,88 @@
+"""Enough data? When a candidate is promising but below the guard's bar, how many more sweeps
+would decide it.
+
+A candidate is *promising* when the diagnosis did not report it (nor another of its family), and
+at the step where the selection stopped for want of a passing candidate it lowers the held-out
+model error by at least half the guard's ``min_gain`` and lowers the training BIC, and what it
+fails is only the weight of evidence: its parameter's distance from "no effect" in standard
+errors (``min_z``), the BIC drop (``min_dbic``), or the held-out drop itself. It is not
+promising when it failed because there was nothing material to explain, the commands barely
+varied, or it did not hold across sweeps (more sweeps of a patch do not make it physics).
+
+How many: with N sweeps, a parameter's standard error falls as 1/sqrt(N) and the BIC drop
+grows as N, so N x max((min_z / z)^2, min_dbic / |dBIC|) sweeps would carry it over the bar,
+if the effect is real and the model otherwise right. The held-out drop does not grow with N;
+when it is short of ``min_gain``, a third more sweeps (one more held out in every three) is
+the least that can show whether it holds. Which sweeps: ``suggest.suggest_sweeps`` with the
+goal *separate*, written as a design for `wind-shaper collect`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .fitting import z_from_null
+
+__all__ = ['Undecided', 'undecided', 'MAX_MORE']
+
+#: More extra sweeps than this: the candidate explains too little to be decided by data.
+MAX_MORE = 24
+
+_NOT_DATA = ('nothing material', 'not identifiable', 'does not hold across sweeps',
+             'fewer than', 'helps on')
+
+
+@dataclass(frozen=True)
+class Undecided:
+    """The promising candidate (a ``diagnose.Trial``), the sweeps recorded, how many more would
+    decide it (``more``; None: more than ``MAX_MORE``), and why, in words."""
+
+    trial: object
+    recorded: int
+    more: int | None
+    why: str
+
+    def text(self) -> str:
+        t = self.trial
+        head = (f'Promising but not decided: {t.candidate.title} lowers the held-out model error '
+                f'{100 * t.gain:.0f} %, but {self.why}.')
+        if self.more is None:
+            return (head + f' More than {MAX_MORE} further sweeps would be needed to decide it: it '
+                           f'explains too little of the residual for the data to tell.')
+        return (head + f' About {self.more} more sweep(s) at varied commands ({self.recorded} now) '
+                       f'would decide it, if it is real.')
+
+    def to_json(self) -> dict:
+        return {'candidate': self.trial.candidate.name, 'gain': round(self.trial.gain, 4),
+                'recorded': self.recorded, 'more_sweeps': self.more, 'why': self.why}
+
+
+def undecided(d) -> Undecided | None:
+    """The best promising candidate of a fitted ``Diagnosis`` (see the module docstring), or None."""
+    if not d.rankings_ or d.low_spread_ or len(d.rankings_) == len(d.selected_):
+        return None  # the selection stopped with nothing material left, not for want of evidence
+    reported = {t.candidate.family for t in d.steps_}
+    pool = [t for t in d.rankings_[-1] if t.stage == 'refined'
+            and t.candidate.family not in reported and not t.passed
+            and t.gain >= 0.5 * d.min_gain and t.dbic < 0
+            and not any(key in r for r in t.reasons for key in _NOT_DATA)]
+    if not pool:
+        return None
+    best = min(pool, key=lambda t: t.bic)
+    recorded = len(d.train_sweeps_) + len(d.test_sweeps_)
+    factor, why = 1.0, []
+    z = z_from_null(best.params, best.std, best.candidate.null)
+    if z is not None and z < d.min_z:
+        factor = max(factor, (d.min_z / max(z, 1e-3)) ** 2)
+        why.append(f'its parameter is only {z:.1f} standard errors from no effect (needs {d.min_z:g})')
+    if best.dbic > -d.min_dbic:
+        factor = max(factor, d.min_dbic / max(-best.dbic, 1e-3))
+        why.append(f'the BIC falls only {-best.dbic:.1f} (needs {d.min_dbic:g})')
+    if best.gain < d.min_gain:
+        factor = max(factor, 4 / 3)
+        why.append(f'the held-out drop is below {100 * d.min_gain:.0f} %, which more held-out sweeps '
+                   f'can confirm or refute')
+    if not why:
+        return None
+    more = max(2, math.ceil(recorded * (factor - 1)))
+    return Undecided(best, recorded, more if more <= MAX_MORE else None, '; '.join(why))
