@@ -12,7 +12,9 @@ path. The model diagnosed is the commissioned reference (config/reference.yaml).
 
 Rows: a clean tunnel (any finding is a false finding); each effect of the library alone (found:
 a candidate of its family among the findings, e.g. swirl in its one-parameter or its quadratic
-form; wrong: a finding of any other family); each effect outside the library
+form, jet interaction with or without its free thrust exponent; ``quadratic_swirl`` and
+``merging_jets`` are effects of a library family in another form than its first candidate;
+wrong: a finding of any other family); each effect outside the library
 alone (any finding is wrong); each outside effect beside a known one (found: the known one's
 candidate; wrong: anything else). Writes bench/out/detection.json and prints a Markdown table.
 """
@@ -29,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 IN_LIBRARY = ['weak_fan', 'swirl', 'wall_boundary_layer', 'jet_interaction', 'dead_band',
-              'tilted_fan', 'elongated_footprint', 'background_draft', 'quadratic_swirl']
+              'tilted_fan', 'elongated_footprint', 'background_draft', 'quadratic_swirl', 'merging_jets']
 OUTSIDE = ['honeycomb_blockage', 'stand_wake', 'plenum_starvation', 'side_draft']
 MIXES = [('stand_wake', 'weak_fan'), ('honeycomb_blockage', 'tilted_fan'),
          ('side_draft', 'background_draft'), ('plenum_starvation', 'wall_boundary_layer')]

@@ -14,7 +14,8 @@ from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batch
                       param_slices, refix, set_fixed, term_label, walk, wrap)
 from .fan_effects import (FanCurve, FanElongation, FanGain, FanShape, FanShift, FanWidth,
                           FanWrapper)
-from .flow_effects import Background, DeadBand, JetInteraction, Swirl, SwirlQuadratic, WallLayer
+from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
+                           SwirlQuadratic, WallLayer)
 from .discrepancy import MODE_NAMES, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
@@ -33,7 +34,8 @@ __all__ = [
     # fan_effects: per-fan candidate effects
     'FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
-    'Swirl', 'SwirlQuadratic', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer',
+    'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
+    'WallLayer',
     # discrepancy: what the library does not explain, without physics
     'Discrepancy', 'FieldFormula', 'command_features', 'feature_words', 'MODE_NAMES',
     # modelfile: model files

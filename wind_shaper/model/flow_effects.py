@@ -1,5 +1,6 @@
 """Whole-flow candidate effects: ``Swirl``, ``JetInteraction``, ``DeadBand`` and ``WallLayer``
-(wrappers of the whole field) and ``Background`` (a field term).
+(wrappers of the whole field; ``SwirlQuadratic`` and ``JetInteractionPower`` are wider forms of
+the first two) and ``Background`` (a field term).
 
 Each term here states one hypothesis about the tunnel, has bounded parameters whose null value
 means "no such effect", prints its formula in ``repr`` and is registered with
@@ -28,9 +29,10 @@ from .fanwise import (PLATE_SIDE, Wrapper, _full, fan_landing, fan_part_batched,
                       fan_width)
 from .terms import Hyper, Term, register_term
 
-__all__ = ['Swirl', 'SwirlQuadratic', 'JetInteraction', 'DeadBand', 'Background', 'WallLayer']
+__all__ = ['Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
+           'WallLayer']
 
-_EPS_T2 = 1e-4  # [N^2] regularises sqrt(T_i T_j) at zero thrust
+_EPS_T2 = 1e-4  # [N^2] regularises sqrt(T_i T_j) (and its power) at zero thrust
 _DZ = 1e-5      # [m] spatial step of Swirl's central differences
 
 
@@ -212,16 +214,22 @@ class JetInteraction(Wrapper):
         T, dT = fan_thrust_batched(self.inner, U, jacobian)
         T = np.maximum(T, 0.0)
         i, k = self.pairs[:, 0], self.pairs[:, 1]
-        root = np.sqrt(T[:, i] * T[:, k] + _EPS_T2)
+        g, dg = self._pair_thrust(T[:, i] * T[:, k] + _EPS_T2)
         B = _plate_gauss(Z, self._mid, self._pair_width, self.plate_side)
-        value = self.strength * np.sum(root * B, axis=1)
+        value = self.strength * np.sum(g * B, axis=1)
         if not jacobian:
             return value, None
         jac = np.zeros((M, self.n_fans))
-        coef = self.strength * B / (2 * root)
+        coef = self.strength * B * dg
         np.add.at(jac.T, i, (coef * T[:, k] * dT[:, i]).T)
         np.add.at(jac.T, k, (coef * T[:, i] * dT[:, k]).T)
         return value, jac
+
+    @staticmethod
+    def _pair_thrust(x):
+        """g(x) [N] of x = T_i T_j + eps [N^2] and dg/dx: here sqrt(x)."""
+        root = np.sqrt(x)
+        return root, 0.5 / root
 
     def _value_and_grad(self, U, Z, jacobian):
         v, J = self.inner._value_and_grad(U, Z, jacobian)
@@ -234,6 +242,56 @@ class JetInteraction(Wrapper):
     def __repr__(self):
         return (f'({self.inner!r}) + JetInteraction({self.strength:.3g} sqrt(T_i T_j) over '
                 f'{len(self.pairs)} neighbour pairs, width x{self.width:.3g})')
+
+
+@register_term
+class JetInteractionPower(JetInteraction):
+    """Hypothesis: neighbouring jets merge and fill the gap between them by a force that grows
+    with the two thrusts in a power other than 1/2 (see ``JetInteraction`` for B_ij, the
+    neighbours and ``width``):
+
+        Phi'(U, z) = Phi(U, z)
+                     + strength * sum_{pairs i~j} T_ref ((T_i T_j + eps) / T_ref^2)^exponent B_ij(z)
+
+    [N], i.e. k (T_i T_j + eps)^exponent B_ij(z) with k = strength T_ref^(1 - 2 exponent)
+    [N^(1 - 2 exponent)]: strength is the gap force's share at the reference thrust
+    ``thrust_ref`` T_ref [N] (structural, not fitted; default 4 N, about one fan's thrust at half
+    command), so strength [-] means what it means in ``JetInteraction`` whatever the exponent,
+    and a fit trades strength against exponent less (their correlation on the simulated paper
+    rig's sweeps: about -0.8 with T_ref = 4 N, -0.99 with 1 N). eps = 1e-4 N^2.
+    strength bounds 0..2 (0 = none, the null value); exponent [-] bounds 0.25..2 (0.5 =
+    ``JetInteraction``; 1 for a gap force that grows with the product of the thrusts, below 0.5
+    for one that saturates); width [-] bounds 0.3..3. The wider form of the jet-interaction
+    family. Detect: excess force between fans that grows faster (or slower) with both
+    neighbours' thrust than their geometric mean."""
+
+    kind = 'jet_interaction_power'
+    hypers = (Hyper('strength', 1, (0.0, 2.0)), Hyper('width', 1, (0.3, 3.0)),
+              Hyper('exponent', 1, (0.25, 2.0)))
+
+    def __init__(self, fans: FanArray, term, strength: float = 0.0, width: float = 1.0,
+                 exponent: float = 0.5, reach: float = 1.2, plate_side: float = PLATE_SIDE,
+                 thrust_ref: float = 4.0, fixed=()):
+        self.exponent = float(exponent)
+        if not (np.isfinite(thrust_ref) and thrust_ref > 0):
+            raise ConfigError(f'JetInteractionPower.thrust_ref must be a positive thrust [N]; '
+                              f'got {thrust_ref}')
+        self.thrust_ref = float(thrust_ref)
+        super().__init__(fans, term, strength=strength, width=width, reach=reach,
+                         plate_side=plate_side, fixed=fixed)
+
+    def _structure(self):
+        return {**super()._structure(), 'thrust_ref': self.thrust_ref}
+
+    def _pair_thrust(self, x):
+        """T_ref (x / T_ref^2)^exponent [N] of x = T_i T_j + eps [N^2], and its derivative."""
+        g = self.thrust_ref * (x / self.thrust_ref ** 2) ** self.exponent
+        return g, self.exponent * g / x
+
+    def __repr__(self):
+        return (f'({self.inner!r}) + JetInteractionPower({self.strength:.3g} x {self.thrust_ref:g} N '
+                f'(T_i T_j / ({self.thrust_ref:g} N)^2)^{self.exponent:.3g} over {len(self.pairs)} '
+                f'neighbour pairs, width x{self.width:.3g})')
 
 
 @register_term

@@ -24,8 +24,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..model import (Background, CentralRing, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
-                     FanShift, FanWidth, FanWrapper, JetInteraction, Sum, Swirl, SwirlQuadratic, Term,
-                     WallLayer, Wrapper, find_term, has_fan_parts, walk)
+                     FanShift, FanWidth, FanWrapper, JetInteraction, JetInteractionPower, Sum, Swirl,
+                     SwirlQuadratic, Term, WallLayer, Wrapper, find_term, has_fan_parts, walk)
 from ..core.geometry import TunnelGeometry
 from .errors import CandidateError
 
@@ -247,19 +247,38 @@ def _swirl_family(model, geometry):
 
 def _interaction_family(model, geometry):
     fans = geometry.fans
-    if any(getattr(t, 'kind', '') == 'jet_interaction' for t in walk(model)) or fans.n_fans < 2:
+    if (any(getattr(t, 'kind', '') in ('jet_interaction', 'jet_interaction_power') for t in walk(model))
+            or fans.n_fans < 2):
         return []
     side = geometry.plate_side
 
     def describe(node, std):
         k, s = float(node.strength), float(std.get('strength', [np.nan])[0])
-        return (f'neighbouring jets entrain each other and fill the gap between them: an extra '
-                f'{_pm(k, s)} x sqrt(T_i T_j) between each pair of neighbours ({len(node.pairs)} pairs, '
-                f'width x{float(node.width):.2f} of the jets\')')
-    return [Candidate('jet_interaction', 'jet_interaction', 'interaction of neighbouring jets',
-                      'neighbouring jets entrain each other and fill the gap between them',
+        if node.kind != 'jet_interaction_power':
+            return (f'neighbouring jets entrain each other and fill the gap between them: an extra '
+                    f'{_pm(k, s)} x sqrt(T_i T_j) between each pair of neighbours ({len(node.pairs)} pairs, '
+                    f'width x{float(node.width):.2f} of the jets\')')
+        p, ps = float(node.exponent), float(std.get('exponent', [np.nan])[0])
+        ref = node.thrust_ref
+        grows = 'faster than' if p > 0.55 else 'slower than' if p < 0.45 else 'about as fast as'
+        return (f'neighbouring jets merge and fill the gap between them with a force that grows '
+                f'{grows} the geometric mean of the two thrusts: an extra {_pm(k, s)} x {ref:g} N x '
+                f'(T_i T_j / ({ref:g} N)^2)^p with thrust exponent p = {_pm(p, ps)} (1/2 would be '
+                f'sqrt(T_i T_j)) between each pair of neighbours ({len(node.pairs)} pairs), spread '
+                f'over {float(node.width):.2f} x the jets\' width')
+    story = 'neighbouring jets entrain each other and fill the gap between them'
+    return [Candidate('jet_interaction', 'jet_interaction', 'interaction of neighbouring jets', story,
                       lambda m, **p: JetInteraction(fans, m, plate_side=side, **p), 'outer',
                       'jet_interaction', {'strength': 0.0}, describe, ({'strength': 0.1, 'width': 1.0},),
+                      refine_always=True),
+            # the wider form: a gap force growing with another power of the two thrusts
+            Candidate('jet_interaction_power', 'jet_interaction',
+                      'interaction of neighbouring jets, with a free thrust exponent',
+                      story + ', by a force that grows with a free power of the two thrusts',
+                      lambda m, **p: JetInteractionPower(fans, m, plate_side=side, **p), 'outer',
+                      'jet_interaction_power', {'strength': 0.0}, describe,
+                      ({'strength': 0.1, 'width': 1.0, 'exponent': 0.5},
+                       {'strength': 0.1, 'width': 1.0, 'exponent': 1.0}),
                       refine_always=True)]
 
 
@@ -403,6 +422,10 @@ def candidate_for_hidden_effect(effect) -> tuple[str, dict]:
         return 'background', {'force': t['force']}
     if name == 'quadratic_swirl':  # swirl in another form: the family's wider candidate
         return 'swirl_quadratic', {'gain': t['gain'], 'curvature': t['curvature']}
+    if name == 'merging_jets':  # jet interaction in another form: the family's wider candidate
+        # the same law at the same reference thrust; the bridge's shape (elongated, its own width)
+        # has no counterpart, so only strength and exponent compare
+        return 'jet_interaction_power', {'strength': t['strength'], 'exponent': t['exponent']}
     raise CandidateError(f'no library candidate stands for the hidden effect {name!r}')
 
 
