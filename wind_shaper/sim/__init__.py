@@ -18,7 +18,7 @@ from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
 from .unmodelled_effects import (OTHER_FORM, OUTSIDE_LIBRARY, HoneycombBlockage, PlenumStarvation,
-                                 QuadraticSwirl, SideDraft, StandWake)
+                                 QuadraticSwirl, SideDraft, StandWake, ThermalGradient)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
@@ -26,7 +26,7 @@ __all__ = [
     'HiddenEffect', 'WeakFan', 'Swirl', 'WallBoundaryLayer', 'JetInteraction', 'DeadBand',
     'TiltedFan', 'ElongatedFootprint', 'BackgroundDraft', 'HIDDEN_EFFECTS', 'make_effect',
     'HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
-    'OUTSIDE_LIBRARY', 'OTHER_FORM',
+    'ThermalGradient', 'OUTSIDE_LIBRARY', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]

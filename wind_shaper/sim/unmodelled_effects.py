@@ -21,7 +21,7 @@ from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
 __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
-           'MergingJets', 'OUTSIDE_LIBRARY', 'OTHER_FORM']
+           'MergingJets', 'ThermalGradient', 'OUTSIDE_LIBRARY', 'OTHER_FORM']
 
 
 @dataclass(frozen=True)
@@ -199,7 +199,27 @@ class MergingJets(HiddenEffect):
 
 
 #: Effects of physics that no library family stands for, and in-library effects in another form.
-OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft)
+@dataclass(frozen=True)
+class ThermalGradient(HiddenEffect):
+    """A warm wall or a radiator on one side of the room: buoyant air rises faster on that side,
+    a force on the plate that grows linearly across the tunnel towards ``direction`` [deg from
+    +x], by ``slope`` [N per 10 cm], whatever the fans do (zero on the axis):
+
+        density += slope * (p . e) / 0.1 m,   e = (cos direction, sin direction).
+
+    No family stands for it (the background candidate is uniform); a formula does: a tilt."""
+
+    slope: float = 0.12
+    direction: float = 120.0
+    name: ClassVar[str] = 'thermal_gradient'
+    bounds: ClassVar = {'slope': (-2.0, 2.0), 'direction': (-360.0, 360.0)}
+
+    def offset(self, points, geometry):
+        e = np.array([np.cos(np.radians(self.direction)), np.sin(np.radians(self.direction))])
+        return self.slope * (points @ e) / 0.1
+
+
+OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft, ThermalGradient)
 OTHER_FORM = (QuadraticSwirl, MergingJets)
 
 for _cls in OUTSIDE_LIBRARY + OTHER_FORM:

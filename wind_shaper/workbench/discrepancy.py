@@ -321,7 +321,7 @@ def describe_discrepancy(fit: DiscrepancyFit, commands: np.ndarray, geometry: Tu
                          f'{np.degrees(np.arctan2(d[1], d[0])):.0f} deg from +x (dx {100 * d[0]:+.1f} cm, '
                          f'dy {100 * d[1]:+.1f} cm; this explains {100 * r2_shift:.0f} % of it): a draft '
                          f'across the tunnel, or the motion capture frame off the tunnel\'s.')
-        elif r2_frac >= min_r2:
+        elif r2_frac >= min_r2 and shares.get('one', 0.0) < 0.3:  # a fixed part is no fraction
             pattern = describe_map(100 * g, grid, geometry, unit='%')
             words.append(f'It looks like a fixed fraction of the local force ({100 * r2_frac:.0f} % of it '
                          f'is): {pattern}; a patch of the straightener that passes more or less of the '

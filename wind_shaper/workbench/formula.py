@@ -9,10 +9,11 @@ of spatial modes times command features (``wind_shaper.model.FieldFormula``):
   (paired only with the bump over that fan).
 
 The terms are chosen by sequential thresholded least squares (SINDy's STLSQ, from pysindy) on
-standardised columns, for a ladder of thresholds; the threshold kept is the one whose formula
-predicts left-out training sweeps best (sweeps are the independent units), and the formula is
-refitted on all training cells with that support. It is offered when it has at most
-``max_terms`` terms and lowers the held-out model error by at least ``min_gain``: then an
+standardised columns, for a ladder of thresholds; of the formulas whose error in predicting
+left-out training sweeps is within one standard error (over the sweeps) of the best, the one with
+the fewest terms is kept (sweeps are the independent units), refitted on all training cells. It is offered when it has at most
+``max_terms`` terms, holds across the training sweeps (one amplitude in each, ``_amplitudes``)
+and lowers the held-out model error by at least ``min_gain``: then an
 effect of simple form has been found, written out, with no physical name attached.
 Positions [m], forces [N].
 """
@@ -45,16 +46,21 @@ class FormulaFit:
     heldout_before: float = float('nan')
     heldout_after: float = float('nan')
     offered: bool = False
+    holds: bool = False          # one amplitude in every training sweep that shows it
+    amplitudes: tuple = ()       # per informative training sweep, the formula's fitted scale
 
     def judge(self, model: Term, heldout, *, min_gain: float = 0.2, max_terms: int = 4) -> 'FormulaFit':
+        """Set the held-out errors and ``offered``: few terms, the held-out drop, and the
+        amplitude check across the training sweeps."""
         self.heldout_before = float(heldout.evaluate(model)['model_rmse'])
         self.heldout_after = float(heldout.evaluate(model + self.term)['model_rmse'])
-        self.offered = bool(0 < self.n_terms <= max_terms
+        self.offered = bool(0 < self.n_terms <= max_terms and self.holds
                             and self.heldout_after <= (1 - min_gain) * self.heldout_before)
         return self
 
     def to_json(self) -> dict:
         return {'formula': self.term.formula(), 'terms': self.n_terms, 'threshold': self.threshold,
+                'holds_across_sweeps': self.holds, 'amplitudes': [round(a, 3) for a in self.amplitudes],
                 'cv_rmse_N': round(self.cv_rmse, 5), 'offered': self.offered,
                 'heldout_model_rmse_N': {'without': round(self.heldout_before, 5),
                                          'with': round(self.heldout_after, 5)},
@@ -99,6 +105,34 @@ def _refit(X, y, support, alpha):
     return w
 
 
+def _amplitudes(pred: np.ndarray, r: np.ndarray, sweep: np.ndarray, *, min_signal: float = 0.02,
+                tolerance: float = 0.1, max_z: float = 3.0, max_disagree: float = 0.25,
+                min_p: float = 1e-3) -> tuple[bool, tuple]:
+    """Does the formula hold across sweeps? Per training sweep where it predicts at least
+    ``min_signal`` [N] RMS, the scale a_s that fits it to that sweep's residual (1 for a real
+    effect, whatever the commands; a patch of another effect needs a different scale in each
+    sweep). z = |a_s - 1| / sqrt(se^2 + tolerance^2); it holds when at least 3 sweeps show it, at
+    most ``max_disagree`` of them have z > ``max_z`` and the chi-square of the z's is not beyond
+    chance (p >= ``min_p``), as the check of named effects (``consistency``) does."""
+    from scipy.stats import chi2
+    amps, zs = [], []
+    for s in np.unique(sweep):
+        rows = sweep == s
+        p, y = pred[rows], r[rows]
+        if len(p) < 5 or float(np.sqrt(np.mean(p * p))) < min_signal:
+            continue
+        a = float(p @ y) / float(p @ p)
+        resid = y - a * p
+        se = float(np.sqrt(resid @ resid / max(len(y) - 1, 1) / (p @ p)))
+        amps.append(a)
+        zs.append(abs(a - 1.0) / np.hypot(se, tolerance))
+    zs = np.asarray(zs)
+    if len(zs) < 3:
+        return False, tuple(amps)
+    holds = bool(np.mean(zs > max_z) <= max_disagree and chi2.sf(float(zs @ zs), len(zs)) >= min_p)
+    return holds, tuple(amps)
+
+
 def fit_formula(model: Term, data: FitData, geometry: TunnelGeometry, *,
                 thresholds=(0.02, 0.04, 0.07, 0.1, 0.15, 0.25), alpha: float = 1e-3,
                 bump_width: float = 0.08) -> FormulaFit:
@@ -115,17 +149,22 @@ def fit_formula(model: Term, data: FitData, geometry: TunnelGeometry, *,
     r_scale = float(np.sqrt(np.mean(r ** 2))) or 1.0
     ys = r / r_scale
     sweeps = np.unique(data.sweep)
-    best = None
+    tried = []
     for th in thresholds:
         support = np.abs(_stlsq(Xs, ys, th, alpha)) > 0
-        sse = 0.0
+        per_sweep = []
         for s in sweeps:  # the support chosen on all cells; its weights refitted without sweep s
             out = data.sweep == s
             w = _refit(Xs[~out], ys[~out], support, alpha)
             e = ys[out] - Xs[out] @ w
-            sse += float(e @ e)
-        if best is None or sse < best[0] * (1 - 1e-9):
-            best = (sse, th, support)
+            per_sweep.append(float(e @ e))
+        tried.append((float(np.sum(per_sweep)), th, support, np.asarray(per_sweep)))
+    # the one-standard-error rule: the sparsest formula whose left-out error is within one
+    # standard error (over sweeps) of the best's; a term that helps less is noise or misfit
+    low = min(tried, key=lambda t: t[0])
+    se = float(np.std(low[3] - np.mean(low[3]), ddof=1) * np.sqrt(len(sweeps))) if len(sweeps) > 1 else 0.0
+    ok = [t for t in tried if t[0] <= low[0] + se]
+    best = min(ok, key=lambda t: (int(t[2].sum()), t[0]))[:3]
     sse, th, support = best
     w = _refit(Xs, ys, support, alpha) * r_scale / np.where(keep, scale, 1.0)
     chosen = [(pairs[i], w[i]) for i in np.flatnonzero(support)]
@@ -136,7 +175,10 @@ def fit_formula(model: Term, data: FitData, geometry: TunnelGeometry, *,
         W[modes.index(m), feats.index(f)] = v
     term = FieldFormula(geometry.fans, modes, feats, W, radius=radius, bump_width=bump_width,
                         note='sparse formula fitted to the residual by the diagnosis')
-    return FormulaFit(term, float(th), float(r_scale * np.sqrt(sse / len(r))), len(chosen))
+    out = FormulaFit(term, float(th), float(r_scale * np.sqrt(sse / len(r))), len(chosen))
+    if chosen:
+        out.holds, out.amplitudes = _amplitudes(term(data.U, data.Z), r, data.sweep)
+    return out
 
 
 def formula_text(fit: FormulaFit) -> str:

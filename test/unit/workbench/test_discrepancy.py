@@ -125,3 +125,24 @@ def test_adding_the_discrepancy_lowers_the_heldout_error_and_saves_a_loadable_mo
     back = load_model(tmp_path / 'model.yaml', wb_setup.geometry.fans)
     U, Z = data.commands[3], data.sweeps[3].positions[:50]
     np.testing.assert_allclose(back(U, Z), out.model(U, Z), atol=1e-9)
+
+
+@pytest.mark.slow
+def test_an_effect_of_simple_form_is_written_out_as_a_formula(diagnosed):
+    # a warm wall: a fixed tilt, no family stands for it; the formula is that tilt
+    d, (effect,) = diagnosed('thermal_gradient')
+    assert d.steps_ == [] and d.formula_ is not None and d.formula_.offered, d.summary()
+    term = d.formula_.term
+    assert set(term.mode_names) == {'x', 'y'} and term.features == ('one',)
+    e = np.radians(effect.direction)
+    truth = effect.slope * term.radius / 0.1 * np.array([np.cos(e), np.sin(e)])
+    got = term.weights[[term.mode_names.index('x'), term.mode_names.index('y')], 0]
+    np.testing.assert_allclose(got, truth, rtol=0.25)
+    assert 'A short formula fits it' in d.summary() and 'x / R' in d.summary()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('effect', ['honeycomb_blockage', 'stand_wake', 'side_draft', 'plenum_starvation'])
+def test_no_formula_is_offered_for_physics_of_no_simple_form(effect, diagnosed):
+    d, _ = diagnosed(effect)
+    assert d.formula_ is None or not d.formula_.offered, d.formula_.term.formula()
