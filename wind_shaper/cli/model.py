@@ -184,9 +184,9 @@ def _cmd_add(args) -> int:
         found = _diagnosis_findings(args.from_diagnosis)
         if not found and not additions:
             raise WindShaperError(f'nothing to add: the diagnosis in {args.from_diagnosis} found no effect and '
-                                  f'offered no discrepancy term '
-                                  f'to add; to add one anyway, name it with --effect NAME (a candidate '
-                                  f'such as fan_gain[HM2] or swirl, or a term kind)')
+                                  f'offered no formula or discrepancy term to add; to add one anyway, name '
+                                  f'it with --effect NAME (a candidate such as fan_gain[HM2] or swirl, a '
+                                  f'term kind, or discrepancy to stand in for the unexplained rest)')
         additions += found
     if not additions:
         raise WindShaperError('nothing to add: give --effect NAME (a candidate such as fan_gain[HM2] or '

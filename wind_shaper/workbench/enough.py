@@ -7,7 +7,8 @@ model error by at least half the guard's ``min_gain`` and lowers the training BI
 fails is only the weight of evidence: its parameter's distance from "no effect" in standard
 errors (``min_z``), the BIC drop (``min_dbic``), or the held-out drop itself. It is not
 promising when it failed because there was nothing material to explain, the commands barely
-varied, or it did not hold across sweeps (more sweeps of a patch do not make it physics).
+varied, or it did not hold across sweeps (more sweeps of a patch do not make it physics), nor
+when it is about a fan that a refused patch was about (the same residual, patched again).
 
 How many: with N sweeps, a parameter's standard error falls as 1/sqrt(N) and the BIC drop
 grows as N, so N x max((min_z / z)^2, min_dbic / |dBIC|) sweeps would carry it over the bar,
@@ -62,8 +63,10 @@ def undecided(d) -> Undecided | None:
     if not d.rankings_ or d.low_spread_ or len(d.rankings_) == len(d.selected_):
         return None  # the selection stopped with nothing material left, not for want of evidence
     reported = {t.candidate.family for t in d.steps_}
+    patched = {f for t in d.demoted_ for f in t.candidate.fans}  # fans a refused patch was about
     pool = [t for t in d.rankings_[-1] if t.stage == 'refined'
             and t.candidate.family not in reported and not t.passed
+            and not set(t.candidate.fans) & patched
             and t.gain >= 0.5 * d.min_gain and t.dbic < 0
             and not any(key in r for r in t.reasons for key in _NOT_DATA)]
     if not pool:

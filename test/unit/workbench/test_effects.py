@@ -35,6 +35,7 @@ def _instances(fans, base):
         'swirl': E.Swirl(fans, base, gain=0.5),
         'swirl_quadratic': E.SwirlQuadratic(fans, base, gain=0.3, curvature=0.8),
         'jet_interaction': E.JetInteraction(fans, base, strength=0.3, width=1.1),
+        'jet_interaction_power': E.JetInteractionPower(fans, base, strength=0.3, width=1.1, exponent=0.7),
         'dead_band': E.DeadBand(fans, base, threshold=0.12, saturation=0.75),
         'wall_layer': E.WallLayer(fans, base, thickness=0.06),
         'background': base + E.Background(fans, force=0.3),
@@ -51,7 +52,8 @@ NAMES = list(_instances(TunnelGeometry.paper_rig().fans, FanJets(TunnelGeometry.
 
 def test_every_library_kind_is_registered_and_covered():
     library_kinds = {'fan_gain', 'fan_shift', 'fan_width', 'fan_elongation', 'fan_curve', 'fan_shape',
-                     'swirl', 'jet_interaction', 'dead_band', 'wall_layer', 'background'}
+                     'swirl', 'swirl_quadratic', 'jet_interaction', 'jet_interaction_power', 'dead_band',
+                     'wall_layer', 'background'}
     assert library_kinds <= set(TERMS)
     assert library_kinds <= {n.replace('_groups', '') for n in NAMES}
 
