@@ -146,7 +146,8 @@ class Diagnosis:
                  min_dbic: float = 10.0, min_z: float = 3.0, material: float = 0.5,
                  max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
                  noise_sd: float | None = None, min_spread: float = 0.10,
-                 check_sweeps: bool = True, describe_outside: bool = True):
+                 check_sweeps: bool = True, describe_outside: bool = True,
+                 check_min_sweeps: int = 4):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -155,6 +156,7 @@ class Diagnosis:
         self.noise_sd = noise_sd
         self.check_sweeps = check_sweeps
         self.describe_outside = describe_outside
+        self.check_min_sweeps = check_min_sweeps
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -338,7 +340,8 @@ class Diagnosis:
             for t in kept:
                 without = self._rebuild([o for o in kept if o is not t])
                 t.check = check_across_sweeps(final.model, t.candidate.label, t.candidate.null,
-                                              self.train_, self.heldout_, without.model)
+                                              self.train_, self.heldout_, without.model,
+                                              min_sweeps=self.check_min_sweeps)
                 if not t.check.passed:
                     failed.append(t)
             if not failed:
@@ -442,9 +445,10 @@ class Diagnosis:
         across sweeps."""
         parts = [f'{t.candidate.title} (it lowers the held-out error {100 * t.gain:.0f} %), but '
                  f'{"; ".join(t.reasons)}' for t in self.demoted_]
+        patch = any('does not hold' in r for t in self.demoted_ for r in t.reasons)
         return ('Partly explained by ' + '; and by '.join(parts)
-                + '. So that is not reported as a finding: the physics is likely something the '
-                  'library lacks.')
+                + ('. So that is not reported as a finding: the physics is likely something the '
+                   'library lacks.' if patch else '. So that is not reported as a finding yet.'))
 
     def to_json(self) -> dict:
         return {

@@ -14,7 +14,9 @@ How many: with N sweeps, a parameter's standard error falls as 1/sqrt(N) and the
 grows as N, so N x max((min_z / z)^2, min_dbic / |dBIC|) sweeps would carry it over the bar,
 if the effect is real and the model otherwise right. The held-out drop does not grow with N;
 when it is short of ``min_gain``, a third more sweeps (one more held out in every three) is
-the least that can show whether it holds. Which sweeps: ``suggest.suggest_sweeps`` with the
+the least that can show whether it holds. An effect the selection added but the check refused
+only because too few training sweeps show it (``Diagnosis.check_min_sweeps``) is promising too:
+the sweeps that let the check run are counted from the share of sweeps that show it. Which sweeps: ``suggest.suggest_sweeps`` with the
 goal *separate*, written as a design for `wind-shaper collect`.
 """
 from __future__ import annotations
@@ -58,9 +60,32 @@ class Undecided:
                 'recorded': self.recorded, 'more_sweeps': self.more, 'why': self.why}
 
 
+def _too_few(d) -> Undecided | None:
+    """An effect the selection added that the check refused only because too few training
+    sweeps show it: the sweeps that would let the check run (the same share of them showing it,
+    every third held out)."""
+    for t in sorted(d.demoted_, key=lambda t: t.bic):
+        c = t.check
+        if c is None or len(t.reasons) != 1 or 'too few to check' not in t.reasons[0]:
+            continue
+        shows = max(int(c.informative.sum()), 1)
+        train_needed = math.ceil(d.check_min_sweeps * len(c.informative) / shows)
+        recorded = len(d.train_sweeps_) + len(d.test_sweeps_)
+        more = max(2, math.ceil(train_needed * 1.5) - recorded)
+        return Undecided(t, recorded, more if more <= MAX_MORE else None,
+                         f'only {shows} of the {len(c.informative)} training sweeps show it, too few '
+                         f'to check that it holds across sweeps (needs {d.check_min_sweeps})')
+    return None
+
+
 def undecided(d) -> Undecided | None:
     """The best promising candidate of a fitted ``Diagnosis`` (see the module docstring), or None."""
-    if not d.rankings_ or d.low_spread_ or len(d.rankings_) == len(d.selected_):
+    if not d.rankings_ or d.low_spread_:
+        return None
+    few = _too_few(d)
+    if few is not None:
+        return few
+    if len(d.rankings_) == len(d.selected_):
         return None  # the selection stopped with nothing material left, not for want of evidence
     reported = {t.candidate.family for t in d.steps_}
     patched = {f for t in d.demoted_ for f in t.candidate.fans}  # fans a refused patch was about

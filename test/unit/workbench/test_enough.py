@@ -8,6 +8,7 @@ from wind_shaper.sim import make_effect
 from wind_shaper.workbench.commands import diagnose_command, simulated_sweeps
 from wind_shaper.workbench.data import from_sim
 from wind_shaper.workbench.diagnose import Diagnosis
+from wind_shaper.workbench.suggest import suggest_sweeps
 
 
 @pytest.mark.slow
@@ -28,10 +29,17 @@ def test_a_promising_candidate_gets_the_sweeps_that_decide_it(wb_setup, referenc
     with open(tmp_path / 'diag' / 'suggested_design.csv') as fh:
         rows = list(csv.reader(fh))
     assert len(rows) == 1 + u.more and d.suggestion_.goal == 'separate'
-    # recorded and pooled, they decide it
-    more = from_sim(sim, d.suggestion_.design.commands, n_samples=1000, source='suggested')
-    after = Diagnosis(describe_outside=False).fit(reference, data + more, wb_setup.geometry)
+    # recorded and pooled, they decide it: following the suggestions round by round (each
+    # diagnosis says how many more), within three rounds
+    suggestion = d.suggestion_
+    for _ in range(3):
+        data = data + from_sim(sim, suggestion.design.commands, n_samples=1000, source='suggested')
+        after = Diagnosis(describe_outside=False).fit(reference, data, wb_setup.geometry)
+        if after.steps_ or after.undecided_ is None or after.undecided_.more is None:
+            break
+        suggestion = suggest_sweeps(after, after.undecided_.more, 0.0, 0.9, goal='separate')
     assert [t.candidate.family for t in after.steps_] == ['dead_band'], after.summary()
+    assert len(data) <= 6 + 12
 
 
 @pytest.mark.slow
