@@ -307,7 +307,6 @@ class Diagnosis:
         else:
             self.verdict_ = 'unexplained'
         # what the library leaves: a discrepancy model of the residual, described
-        self.undecided_ = undecided(self)
         # and a short formula for it, when one predicts the held-out sweeps
         self.discrepancy_ = self.formula_ = None
         if (self.describe_outside and not self.low_spread_
@@ -316,6 +315,7 @@ class Diagnosis:
                                                  self.train_sweeps_.commands, geometry)
             self.formula_ = fit_formula(self.final_.model, self.train_, geometry).judge(
                 self.final_.model, self.heldout_, min_gain=self.min_gain)
+        self.undecided_ = undecided(self)
         return self
 
     def _rebuild(self, steps: list) -> FitResult:

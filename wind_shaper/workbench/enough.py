@@ -8,7 +8,9 @@ fails is only the weight of evidence: its parameter's distance from "no effect" 
 errors (``min_z``), the BIC drop (``min_dbic``), or the held-out drop itself. It is not
 promising when it failed because there was nothing material to explain, the commands barely
 varied, or it did not hold across sweeps (more sweeps of a patch do not make it physics), nor
-when it is about a fan that a refused patch was about (the same residual, patched again).
+when it is about a fan that a refused patch was about (the same residual, patched again), nor
+when the diagnosis's discrepancy model (a pattern outside the library) lowers the held-out error
+by more than 1.5 times what the candidate does (``RIVAL_SHARE``).
 
 How many: with N sweeps, a parameter's standard error falls as 1/sqrt(N) and the BIC drop
 grows as N, so N x max((min_z / z)^2, min_dbic / |dBIC|) sweeps would carry it over the bar,
@@ -30,6 +32,9 @@ __all__ = ['Undecided', 'undecided', 'MAX_MORE']
 
 #: More extra sweeps than this: the candidate explains too little to be decided by data.
 MAX_MORE = 24
+#: A candidate must lower the held-out error by at least this share of what the diagnosis's
+#: discrepancy model (when offered) lowers it by: else it only patches a pattern the library lacks.
+RIVAL_SHARE = 2 / 3
 
 _NOT_DATA = ('nothing material', 'not identifiable', 'does not hold across sweeps',
              'fewer than', 'helps on')
@@ -60,13 +65,13 @@ class Undecided:
                 'recorded': self.recorded, 'more_sweeps': self.more, 'why': self.why}
 
 
-def _too_few(d) -> Undecided | None:
+def _too_few(d, floor: float) -> Undecided | None:
     """An effect the selection added that the check refused only because too few training
     sweeps show it: the sweeps that would let the check run (the same share of them showing it,
     every third held out)."""
     for t in sorted(d.demoted_, key=lambda t: t.bic):
         c = t.check
-        if c is None or len(t.reasons) != 1 or 'too few to check' not in t.reasons[0]:
+        if c is None or len(t.reasons) != 1 or 'too few to check' not in t.reasons[0] or t.gain < floor:
             continue
         shows = max(int(c.informative.sum()), 1)
         train_needed = math.ceil(d.check_min_sweeps * len(c.informative) / shows)
@@ -82,7 +87,11 @@ def undecided(d) -> Undecided | None:
     """The best promising candidate of a fitted ``Diagnosis`` (see the module docstring), or None."""
     if not d.rankings_ or d.low_spread_:
         return None
-    few = _too_few(d)
+    # a candidate that explains much less than a pattern the library lacks is a patch of it
+    disc = getattr(d, 'discrepancy_', None)
+    floor = (RIVAL_SHARE * (1 - disc.heldout_after / disc.heldout_before)
+             if disc is not None and disc.offered and disc.heldout_before > 0 else 0.0)
+    few = _too_few(d, floor)
     if few is not None:
         return few
     if len(d.rankings_) == len(d.selected_):
@@ -92,7 +101,7 @@ def undecided(d) -> Undecided | None:
     pool = [t for t in d.rankings_[-1] if t.stage == 'refined'
             and t.candidate.family not in reported and not t.passed
             and not set(t.candidate.fans) & patched
-            and t.gain >= 0.5 * d.min_gain and t.dbic < 0
+            and t.gain >= max(0.5 * d.min_gain, floor) and t.dbic < 0
             and not any(key in r for r in t.reasons for key in _NOT_DATA)]
     if not pool:
         return None
