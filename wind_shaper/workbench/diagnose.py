@@ -60,6 +60,7 @@ from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
+from .wording import _bic_text, _change_text, drop_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
 
@@ -473,33 +474,6 @@ class Diagnosis:
                                'too_little': bool(self.low_spread_)},
             'warnings': [w for w in (self.spread_warning(),) if w],
         }
-
-
-def _change_text(gain: float) -> str:
-    """A relative drop of the held-out error in words: 'falls only 12 %', 'rises 912 %'."""
-    pct = 100 * gain
-    if pct <= -0.5:
-        return f'rises {-pct:.0f} %'
-    if pct < 0.5:
-        return 'does not change'
-    return f'falls only {pct:.0f} %'
-
-
-def _bic_text(dbic: float) -> str:
-    """A BIC change in words: 'falls only 4.1', 'rises 15.0'."""
-    if dbic >= 0.05:
-        return f'rises {dbic:.1f}'
-    if dbic > -0.05:
-        return 'does not change'
-    return f'falls only {-dbic:.1f}'
-
-
-def drop_text(gain: float) -> str:
-    """The held-out error's relative change for a table cell: '76 % lower', '912 % higher'."""
-    pct = 100 * gain
-    if abs(pct) < 0.5:
-        return '0 %'
-    return f'{pct:.0f} % lower' if pct > 0 else f'{-pct:.0f} % higher'
 
 
 def _nodes(model):
