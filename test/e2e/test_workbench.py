@@ -120,7 +120,8 @@ def test_adding_from_a_diagnosis_that_found_nothing_says_so(tmp_path, capsys):
     assert main(['model', 'add', '--sim', '--sweeps', '3', '--samples', '60', '--from-diagnosis', str(summary),
                  '--out', str(tmp_path / 'o')]) == 2
     err = capsys.readouterr().err
-    assert f'the diagnosis in {summary} found no effect to add' in err and 'or --from-diagnosis' not in err
+    assert (f'the diagnosis in {summary} found no effect and offered no formula or discrepancy term to add'
+            in err and 'or --from-diagnosis' not in err and 'discrepancy to stand in' in err)
     assert not (tmp_path / 'o').exists()
 
 
@@ -172,3 +173,18 @@ def test_diagnose_on_physics_the_library_lacks_names_nothing_and_shows_the_check
     assert any('does not hold across sweeps' in r for r in refused['reasons'])
     report = (diag / 'report.md').read_text()
     assert 'across sweeps (pooled' in report and 'refitted on the sweep' in report
+
+
+def test_a_diagnosis_that_offered_a_term_for_the_rest_adds_it(tmp_path):
+    from wind_shaper.cli.model import _diagnosis_findings
+    summary = tmp_path / 'summary.json'
+    doc = {'command': 'diagnose', 'findings': [{'candidate': 'swirl', 'params': {'gain': 0.4}}],
+           'discrepancy': {'offered': True}, 'formula': {'offered': False}}
+    summary.write_text(json.dumps(doc))
+    assert _diagnosis_findings(summary) == [('swirl', {'gain': 0.4}), ('discrepancy', {})]
+    doc['formula'] = {'offered': True}  # a formula, when there is one, says more than the GP
+    summary.write_text(json.dumps(doc))
+    assert _diagnosis_findings(summary) == [('swirl', {'gain': 0.4}), ('formula', {})]
+    doc['discrepancy'] = doc['formula'] = None  # neither offered
+    summary.write_text(json.dumps(doc))
+    assert _diagnosis_findings(summary) == [('swirl', {'gain': 0.4})]
