@@ -25,8 +25,8 @@ from .errors import CandidateError
 from .fitting import FitResult, fit_model
 from .library import Library, _pm, apply_candidate, candidate_for_hidden_effect, default_library
 from .metrics import HeldOut, evaluate
-from .report import (Report, plot_closed_loop, plot_fan_curves, plot_measured_vs_model,
-                     plot_radial_angular, plot_ranking, plot_residual_maps)
+from .report import (Report, plot_closed_loop, plot_discrepancy, plot_fan_curves,
+                     plot_measured_vs_model, plot_radial_angular, plot_ranking, plot_residual_maps)
 from .residuals import analyse_residuals
 from .suggest import suggest_sweeps
 
@@ -191,6 +191,11 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
     rep.text(f'Data: {data.source}, {len(data)} sweeps; held out: {", ".join(d.test_sweeps_.labels)}.\n\n'
              f'Model: {model!r}')
     rep.text(d.summary(), heading='Verdict')
+    if d.discrepancy_ is not None:
+        rep.figure('discrepancy', plot_discrepancy(d.discrepancy_, d.train_sweeps_.commands, geometry),
+                   'what lies outside the library: a discrepancy model fitted to the residual (no '
+                   'physics in it)', heading='What lies outside the library')
+        rep.bullets(d.discrepancy_.words)
     if truth:
         rows = []
         found = {t.candidate.name: t for t in d.steps_}

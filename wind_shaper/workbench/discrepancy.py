@@ -44,6 +44,7 @@ class DiscrepancyFit:
     heldout_before: float = float('nan')  # [N] held-out model error without it
     heldout_after: float = float('nan')   # [N] and with it
     readings: dict = field(default_factory=dict)  # the physical readings tried, with their R^2
+    fraction_map: tuple | None = None  # (grid (G, 2) [m], g (G,)): the fixed-fraction reading's map
 
     @property
     def offered(self) -> bool:
@@ -314,6 +315,7 @@ def describe_discrepancy(fit: DiscrepancyFit, commands: np.ndarray, geometry: Tu
     if model is not None and rms > 0:
         r2_shift, d = _as_displacement(total, model, commands, grid)
         r2_frac, g = _as_fraction(total, model, commands, grid)
+        fit.fraction_map = (grid, g)
         fit.readings = {'displacement': {'r2': round(r2_shift, 4), 'shift_m': np.round(d, 4).tolist()},
                         'fraction': {'r2': round(r2_frac, 4)}}
         if r2_shift >= min_r2 and r2_shift >= r2_frac:

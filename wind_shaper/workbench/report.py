@@ -123,6 +123,39 @@ def plot_residual_map(analysis, geometry: TunnelGeometry, axes, title: str = '',
     axes[1].set_title('its uncertainty (GP standard deviation)', fontsize=9)
 
 
+def plot_discrepancy(fit, commands: np.ndarray, geometry: TunnelGeometry):
+    """What lies outside the library (``discrepancy.DiscrepancyFit``): the discrepancy at the
+    sweeps' mean command [N], the share of it each command feature carries, and, when computed,
+    the map of its fixed-fraction reading [% of the local force]; fans drawn."""
+    from .discrepancy import disc_grid
+    grid = disc_grid(geometry.sweep_radius, 0.02)
+    tri = mtri.Triangulation(grid[:, 0], grid[:, 1])
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.3))
+    value = fit.term(np.mean(commands, axis=0), grid)
+    vmax = max(float(np.max(np.abs(value))), 1e-3)
+    cs = axes[0].tricontourf(tri, value, levels=np.linspace(-vmax, vmax, 21), cmap='RdBu_r', extend='both')
+    plt.colorbar(cs, ax=axes[0], label='measured - model [N]')
+    draw_fans(axes[0], geometry)
+    axes[0].set_title('discrepancy at the sweeps\' mean command', fontsize=9)
+    names = sorted(fit.shares, key=fit.shares.get)
+    axes[1].barh(names, [100 * fit.shares[n] for n in names], color='tab:gray')
+    axes[1].set_xlabel('share of the discrepancy [%]')
+    axes[1].set_title('what it scales with', fontsize=9)
+    if fit.fraction_map is not None:
+        grid_g, g = fit.fraction_map
+        gmax = max(float(np.max(np.abs(100 * g))), 1e-3)
+        cs = axes[2].tricontourf(mtri.Triangulation(grid_g[:, 0], grid_g[:, 1]), 100 * g,
+                                 levels=np.linspace(-gmax, gmax, 21), cmap='RdBu_r', extend='both')
+        plt.colorbar(cs, ax=axes[2], label='measured / model - 1 [%]')
+        draw_fans(axes[2], geometry)
+        axes[2].set_title(f'as a fixed fraction of the local force (explains '
+                          f'{100 * fit.readings.get("fraction", {}).get("r2", 0):.0f} %)', fontsize=9)
+    else:
+        axes[2].axis('off')
+    fig.tight_layout()
+    return fig
+
+
 def plot_residual_maps(analyses: dict, geometry: TunnelGeometry):
     """One row per analysis (e.g. before / after), a shared colour scale."""
     vmax = max(float(np.max(np.abs(a.map_mean))) for a in analyses.values()) or 1e-3

@@ -146,3 +146,15 @@ def test_an_effect_of_simple_form_is_written_out_as_a_formula(diagnosed):
 def test_no_formula_is_offered_for_physics_of_no_simple_form(effect, diagnosed):
     d, _ = diagnosed(effect)
     assert d.formula_ is None or not d.formula_.offered, d.formula_.term.formula()
+
+
+@pytest.mark.slow
+def test_the_diagnosis_report_shows_what_lies_outside(wb_setup, reference, sim_data, tmp_path):
+    from wind_shaper.workbench.commands import diagnose_command
+    data, _ = sim_data('honeycomb_blockage')
+    d = diagnose_command(reference, data, wb_setup.geometry, tmp_path / 'diag')
+    report = (tmp_path / 'diag' / 'report.md').read_text()
+    assert (tmp_path / 'diag' / 'discrepancy.png').stat().st_size > 10000
+    assert '## What lies outside the library' in report and d.discrepancy_.words[1] in report
+    summary = __import__('json').loads((tmp_path / 'diag' / 'summary.json').read_text())
+    assert summary['discrepancy']['offered'] and summary['discrepancy']['readings']['fraction']['r2'] >= 0.6
