@@ -16,7 +16,7 @@ setup(
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     package_data={PACKAGE: ['data/*.yaml']},
-    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'matplotlib', 'pymavlink', 'rosbags', 'pysindy'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'matplotlib', 'pymavlink', 'rosbags', 'pysindy', 'threadpoolctl'],
     zip_safe=True,
     maintainer='wind_shaper developers',
     description='Online-learning airflow shaping for multi-fan wind tunnels',
