@@ -198,7 +198,6 @@ class MergingJets(HiddenEffect):
                                   np.maximum(long, self.width))]
 
 
-#: Effects of physics that no library family stands for, and in-library effects in another form.
 @dataclass(frozen=True)
 class ThermalGradient(HiddenEffect):
     """A warm wall or a radiator on one side of the room: buoyant air rises faster on that side,
@@ -219,6 +218,7 @@ class ThermalGradient(HiddenEffect):
         return self.slope * (points @ e) / 0.1
 
 
+#: Effects of physics that no library family stands for, and in-library effects in another form.
 OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft, ThermalGradient)
 OTHER_FORM = (QuadraticSwirl, MergingJets)
 

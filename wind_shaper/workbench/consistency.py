@@ -29,7 +29,7 @@ from ..model import Term, param_slices, term_label
 from .data import FitData
 from .fitting import fit_model
 
-__all__ = ['SweepCheck', 'check_across_sweeps']
+__all__ = ['SweepCheck', 'check_across_sweeps', 'judge_spread']
 
 
 @dataclass
@@ -56,6 +56,9 @@ class SweepCheck:
     size: np.ndarray | None = None
     passed: bool = False
     reasons: list = field(default_factory=list)
+    too_few: bool = False       # too few training sweeps show it to check it (more data would)
+    spread: bool = False        # it does not hold across the sweeps (a patch of something else)
+    heldout_short: bool = False  # it improves too few of the held-out sweeps it touches
 
     def spread_text(self) -> str:
         """'its gain runs from 0.62 to 0.91 across the sweeps' for the parameter that disagrees
@@ -118,6 +121,19 @@ def _shows_effect(signal: np.ndarray, min_signal: float) -> np.ndarray:
     return signal >= max(min_signal, 0.25 * float(np.median(signal)))
 
 
+def judge_spread(z: np.ndarray, informative: np.ndarray, dof: int, *, max_z: float = 3.0,
+                 max_disagree: float = 0.25, min_p: float = 1e-3) -> tuple[np.ndarray, float, bool]:
+    """The rule that decides whether a value holds across sweeps, from the z-scores (S, P) of
+    each sweep's values against the value they should share (0 where a sweep is not
+    informative): (disagree (S,), chi-square p-value on ``dof`` degrees of freedom, holds). It
+    holds when at most ``max_disagree`` of the informative sweeps have a z above ``max_z`` and
+    the spread as a whole is not beyond chance (p >= ``min_p``)."""
+    disagree = informative & np.any(z > max_z, axis=1)
+    n_inf = int(informative.sum())
+    p_value = float(chi2.sf(float(np.sum(z ** 2)), dof)) if n_inf > 1 else 1.0
+    return disagree, p_value, not (disagree.sum() > max_disagree * n_inf or p_value < min_p)
+
+
 def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, heldout,
                         previous: Term, *, tolerance: float = 0.1, max_z: float = 3.0,
                         max_disagree: float = 0.25, min_p: float = 1e-3,
@@ -150,10 +166,9 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
     # elongation); a term without any null value is checked on all of its parameters.
     magnitude = np.isfinite(null_values) if np.isfinite(null_values).any() else np.ones(len(names), bool)
     z = z[:, magnitude]
-    disagree = informative & np.any(z > max_z, axis=1)
     n_inf = int(informative.sum())
-    dof = max((n_inf - 1) * int(magnitude.sum()), 1)
-    p_value = float(chi2.sf(float(np.sum(z ** 2)), dof)) if n_inf > 1 else 1.0
+    disagree, p_value, holds = judge_spread(z, informative, max((n_inf - 1) * int(magnitude.sum()), 1),
+                                            max_z=max_z, max_disagree=max_disagree, min_p=min_p)
 
     # held-out sweeps: does the effect help on most of those it touches?
     data = heldout.data
@@ -167,16 +182,19 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
 
     check = SweepCheck(names, pooled, null_values, values, stds, signal, informative, disagree,
                        better, h_informative, p_value=p_value, size=size)
-    if n_inf < min_sweeps:
+    check.too_few = n_inf < min_sweeps
+    check.spread = not check.too_few and not holds
+    if check.too_few:
         check.reasons.append(f'only {n_inf} training sweep(s) show the effect: too few to check that '
                              f'it holds across sweeps (needs {min_sweeps}); record more sweeps')
-    elif disagree.sum() > max_disagree * n_inf or p_value < min_p:
+    elif check.spread:
         check.reasons.append(f'it does not hold across sweeps: {check.spread_text()} '
                              f'({int(disagree.sum())} of {n_inf} sweeps disagree with the pooled fit by '
                              f'more than {max_z:g} standard errors; chance of so much spread {p_value:.1g})')
     n_held = int(h_informative.sum())
     n_better = int((better & h_informative).sum())
-    if n_held and n_better < min_heldout_share * n_held:
+    check.heldout_short = bool(n_held and n_better < min_heldout_share * n_held)
+    if check.heldout_short:
         check.reasons.append(f'it improves only {n_better} of the {n_held} held-out sweeps it touches')
     check.passed = not check.reasons
     return check

@@ -307,8 +307,8 @@ class Diagnosis:
             self.verdict_ = 'explained'
         else:
             self.verdict_ = 'unexplained'
-        # what the library leaves: a discrepancy model of the residual, described
-        # and a short formula for it, when one predicts the held-out sweeps
+        # what the library leaves: a discrepancy model of the residual, described, and a short
+        # formula for it; then a promising candidate, which must explain more than a patch would
         self.discrepancy_ = self.formula_ = None
         if (self.describe_outside and not self.low_spread_
                 and self.final_rmse_ >= self.material * self.noise_sd_):
@@ -446,7 +446,7 @@ class Diagnosis:
         across sweeps."""
         parts = [f'{t.candidate.title} (it lowers the held-out error {100 * t.gain:.0f} %), but '
                  f'{"; ".join(t.reasons)}' for t in self.demoted_]
-        patch = any('does not hold' in r for t in self.demoted_ for r in t.reasons)
+        patch = any(t.check is not None and t.check.spread for t in self.demoted_)
         return ('Partly explained by ' + '; and by '.join(parts)
                 + ('. So that is not reported as a finding: the physics is likely something the '
                    'library lacks.' if patch else '. So that is not reported as a finding yet.'))

@@ -23,6 +23,7 @@ from scipy.linalg import cho_factor, cho_solve
 from ..core.geometry import TunnelGeometry
 from ..model import Discrepancy, Term, command_features, feature_words
 from .data import FitData
+from .residuals import disc_grid
 
 __all__ = ['DiscrepancyFit', 'fit_discrepancy', 'describe_discrepancy', 'describe_map', 'disc_grid',
            'describe_outside', 'outside_text']
@@ -61,14 +62,6 @@ class DiscrepancyFit:
                 'offered': bool(self.offered), 'readings': self.readings,
                 'shares': {k: round(v, 4) for k, v in self.shares.items()}, 'words': list(self.words),
                 'term': self.term.to_dict()}
-
-
-def disc_grid(radius: float, step: float) -> np.ndarray:
-    """Points of a square grid of ``step`` [m] within ``radius`` [m] of the axis, (G, 2)."""
-    ticks = np.arange(-radius, radius + 1e-9, step)
-    xx, yy = np.meshgrid(ticks, ticks)
-    pts = np.column_stack([xx.ravel(), yy.ravel()])
-    return pts[np.hypot(pts[:, 0], pts[:, 1]) <= radius + 1e-9]
 
 
 def _evidence_fit(Phi: np.ndarray, r: np.ndarray, groups: np.ndarray, n_iter: int = 30):

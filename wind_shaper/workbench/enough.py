@@ -36,9 +36,6 @@ MAX_MORE = 24
 #: discrepancy model (when offered) lowers it by: else it only patches a pattern the library lacks.
 RIVAL_SHARE = 2 / 3
 
-_NOT_DATA = ('nothing material', 'not identifiable', 'does not hold across sweeps',
-             'fewer than', 'helps on')
-
 
 @dataclass(frozen=True)
 class Undecided:
@@ -71,7 +68,7 @@ def _too_few(d, floor: float) -> Undecided | None:
     every third held out)."""
     for t in sorted(d.demoted_, key=lambda t: t.bic):
         c = t.check
-        if c is None or len(t.reasons) != 1 or 'too few to check' not in t.reasons[0] or t.gain < floor:
+        if c is None or not c.too_few or c.heldout_short or t.gain < floor:
             continue
         shows = max(int(c.informative.sum()), 1)
         train_needed = math.ceil(d.check_min_sweeps * len(c.informative) / shows)
@@ -101,8 +98,7 @@ def undecided(d) -> Undecided | None:
     pool = [t for t in d.rankings_[-1] if t.stage == 'refined'
             and t.candidate.family not in reported and not t.passed
             and not set(t.candidate.fans) & patched
-            and t.gain >= max(0.5 * d.min_gain, floor) and t.dbic < 0
-            and not any(key in r for r in t.reasons for key in _NOT_DATA)]
+            and t.gain >= max(0.5 * d.min_gain, floor) and t.dbic < 0]
     if not pool:
         return None
     best = min(pool, key=lambda t: t.bic)

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core.geometry import TunnelGeometry
 from ..model import MODE_NAMES, FieldFormula, Term, command_features
+from .consistency import judge_spread
 from .data import FitData
 
 __all__ = ['FormulaFit', 'fit_formula', 'formula_text']
@@ -113,8 +114,8 @@ def _amplitudes(pred: np.ndarray, r: np.ndarray, sweep: np.ndarray, *, min_signa
     effect, whatever the commands; a patch of another effect needs a different scale in each
     sweep). z = |a_s - 1| / sqrt(se^2 + tolerance^2); it holds when at least 3 sweeps show it, at
     most ``max_disagree`` of them have z > ``max_z`` and the chi-square of the z's is not beyond
-    chance (p >= ``min_p``), as the check of named effects (``consistency``) does."""
-    from scipy.stats import chi2
+    chance (p >= ``min_p``): the rule of the check of named effects (``consistency.judge_spread``),
+    with one degree of freedom per sweep (the amplitude is compared with 1, not with a pooled fit)."""
     amps, zs = [], []
     for s in np.unique(sweep):
         rows = sweep == s
@@ -129,8 +130,9 @@ def _amplitudes(pred: np.ndarray, r: np.ndarray, sweep: np.ndarray, *, min_signa
     zs = np.asarray(zs)
     if len(zs) < 3:
         return False, tuple(amps)
-    holds = bool(np.mean(zs > max_z) <= max_disagree and chi2.sf(float(zs @ zs), len(zs)) >= min_p)
-    return holds, tuple(amps)
+    _, _, holds = judge_spread(zs[:, None], np.ones(len(zs), bool), len(zs), max_z=max_z,
+                               max_disagree=max_disagree, min_p=min_p)
+    return bool(holds), tuple(amps)
 
 
 def fit_formula(model: Term, data: FitData, geometry: TunnelGeometry, *,

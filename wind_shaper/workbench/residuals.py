@@ -29,7 +29,7 @@ from ..core.geometry import TunnelGeometry
 from ..model import Term
 from .data import FitData
 
-__all__ = ['ResidualAnalysis', 'analyse_residuals']
+__all__ = ['ResidualAnalysis', 'analyse_residuals', 'disc_grid']
 
 
 def _eta2(values: np.ndarray, groups: np.ndarray) -> float:
@@ -166,7 +166,8 @@ class ResidualAnalysis:
                 'structure': self.describe()}
 
 
-def _grid(radius: float, step: float) -> np.ndarray:
+def disc_grid(radius: float, step: float) -> np.ndarray:
+    """Points of a square grid of ``step`` [m] within ``radius`` [m] of the axis, (G, 2)."""
     ticks = np.arange(-radius, radius + 1e-9, step)
     xx, yy = np.meshgrid(ticks, ticks)
     pts = np.column_stack([xx.ravel(), yy.ravel()])
@@ -192,7 +193,7 @@ def analyse_residuals(model: Term, data: FitData, geometry: TunnelGeometry, *,
     noise = float(noise_sd) if noise_sd is not None else 0.5 * float(np.std(r))
     gp = GaussianProcessField(length_scale=length_scale, noise_std=max(noise, 1e-3))
     gp.fit(Z[pick], r[pick])
-    grid = _grid(geometry.sweep_radius, grid_step)
+    grid = disc_grid(geometry.sweep_radius, grid_step)
     mean, std = gp.predict(grid, return_std=True)
     at_samples = gp.predict(Z[pick])
     smooth = float(np.var(at_samples) / np.var(r[pick])) if np.var(r[pick]) > 0 else 0.0
