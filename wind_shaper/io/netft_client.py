@@ -144,7 +144,10 @@ class NetFtClient:
 
     def request_stream(self, sample_count: int = 0) -> None:
         """Send the start-streaming request again without touching the counters (a sensor
-        that booted after us, or rebooted, never got the first one)."""
+        that booted after us, or rebooted, never got the first one). The records that follow
+        start a new stream: a rebooted sensor numbers them from 1 again."""
+        with self._lock:
+            self._tracker.restart_stream()
         self._send(RdtCommand.START_REALTIME, sample_count)
 
     def bias(self) -> None:

@@ -379,6 +379,16 @@ class RdtSequenceTracker:
         self._received = self._accepted = self._lost = 0
         self._out_of_order = self._duplicates = self._stale = self._resyncs = 0
 
+    def restart_stream(self) -> None:
+        """Forget the stream's position but keep the counters: the next record starts a new
+        stream, whatever its number. For a re-sent start request: a sensor that rebooted, or
+        starts a new stream, numbers from 1 again, and without this those records would look
+        stale (older than the newest seen) until the count passed the old one."""
+        if self._newest is not None:
+            self._resyncs += 1
+        self._newest = None
+        self._seen = self._missing = 0
+
     @property
     def newest(self) -> int | None:
         """The newest rdt_sequence seen, or None before the first record."""
@@ -471,16 +481,28 @@ class SampleClock:
     100 ms of lag. Here t_n = offset + n / rate_hz, with n the unwrapped rdt_sequence and offset
     the smallest (arrival - n / rate_hz) seen, i.e. the least-delayed record's. The offset may
     rise by at most ``max_drift`` seconds per second (the two crystals drift apart by ppm), so a
-    lag spike never moves it. A jump of more than ``restart_s`` in the sequence (the sensor
-    restarted) starts over. Times are in the clock of ``arrival`` [s].
+    lag spike never moves it. The clock starts over (the sensor restarted, or the stream was
+    re-requested) when the sequence jumps forward by more than ``restart_s``, steps back by
+    more than ``max_backstep_s``, or a record would be stamped more than ``max_lag_s`` before
+    it arrived: no host lags that long, so the numbers no longer belong to the anchored stream,
+    and keeping the anchor would stamp the new stream seconds in the past. Times are in the
+    clock of ``arrival`` [s].
     """
 
-    def __init__(self, rate_hz: float, max_drift: float = 200e-6, restart_s: float = 10.0):
+    def __init__(self, rate_hz: float, max_drift: float = 200e-6, restart_s: float = 10.0,
+                 max_backstep_s: float = 0.1, max_lag_s: float = 5.0):
         if not rate_hz > 0:
             raise ProtocolConfigError(f'SampleClock needs the sensor rate > 0 Hz, got {rate_hz}')
+        if not (max_lag_s > 0 and max_backstep_s >= 0 and restart_s > 0):
+            raise ProtocolConfigError(f'SampleClock needs restart_s > 0, max_backstep_s >= 0 and '
+                                      f'max_lag_s > 0; got {restart_s}, {max_backstep_s}, '
+                                      f'{max_lag_s}')
         self.rate_hz = float(rate_hz)
         self.max_drift = float(max_drift)
         self.restart_n = int(restart_s * rate_hz)
+        self.max_backstep_n = int(max_backstep_s * rate_hz)
+        self.max_lag_s = float(max_lag_s)
+        self.restarts = 0
         self.reset()
 
     def reset(self) -> None:
@@ -493,8 +515,10 @@ class SampleClock:
         """Sample time [s] of record ``rdt_sequence`` that arrived at ``arrival`` [s]."""
         if self._last_seq is not None:
             step = ((rdt_sequence - self._last_seq + (1 << 31)) % (1 << 32)) - (1 << 31)
-            if abs(step) > self.restart_n:
+            lag = arrival - (self._offset + (self._n + step) / self.rate_hz)
+            if step > self.restart_n or step < -self.max_backstep_n or lag > self.max_lag_s:
                 self.reset()
+                self.restarts += 1
             else:
                 self._n += step
         self._last_seq = rdt_sequence

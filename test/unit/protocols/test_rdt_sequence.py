@@ -152,3 +152,11 @@ def test_random_drops_reorders_duplicates_match_the_reference(seed):
     assert (s.lost, s.out_of_order, s.duplicates, s.stale) == (lost, ooo, dup, 0)
     assert s.received == len(stream)
     assert s.accepted == len(set(stream)) - ooo
+
+
+def test_restart_stream_takes_a_sensor_that_counts_from_one_again_without_stale_records():
+    tr, v = run([20_000, 20_001])
+    tr.restart_stream()                 # the start request was sent again after a silence
+    assert [tr.observe(s) for s in (1, 2, 3)] == [V.FIRST, V.IN_ORDER, V.IN_ORDER]
+    s = tr.stats
+    assert (s.accepted, s.stale, s.resyncs, s.lost) == (5, 0, 1, 0)

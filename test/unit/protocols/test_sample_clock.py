@@ -24,3 +24,30 @@ def test_sample_clock_restarts_and_follows_drift():
     assert abs(t - (19999 / 1000.0 * (1 + 50e-6) + 0.001)) < 0.002
     t = clock.stamp(5, 50.0)  # sensor restarted: the sequence jumped back
     assert abs(t - 50.0) < 1e-9
+
+
+def test_sample_clock_starts_over_when_a_restarted_sensor_counts_from_one_again():
+    # 4 s of stream (shorter than restart_s), the sensor dies, comes back 6 s later from 1
+    clock = SampleClock(1000.0)
+    for n in range(4000):
+        clock.stamp(20 + n, 100.0 + n / 1000.0 + 0.001)
+    stamps = [clock.stamp(1 + n, 110.0 + n / 1000.0 + 0.001) for n in range(100)]
+    assert abs(stamps[-1] - (110.0 + 99 / 1000.0)) < 0.002
+    assert clock.restarts == 1
+
+
+def test_sample_clock_starts_over_when_the_numbers_continue_after_a_long_silence():
+    # the new stream's numbers happen to continue the old ones: the 8 s of lag gives it away
+    clock = SampleClock(1000.0)
+    for n in range(3000):
+        clock.stamp(n, 100.0 + n / 1000.0)
+    t = clock.stamp(3000, 111.0)
+    assert abs(t - 111.0) < 1e-9 and clock.restarts == 1
+
+
+def test_sample_clock_keeps_its_anchor_through_a_one_second_host_stall():
+    clock = SampleClock(1000.0)
+    for n in range(3000):
+        clock.stamp(n, 100.0 + n / 1000.0 + 0.001)
+    late = clock.stamp(3000, 104.0)       # true time 103.0: a second in the socket buffer
+    assert abs(late - 103.0) < 0.002 and clock.restarts == 0
