@@ -14,7 +14,7 @@ from .control import (IterationRecord, ShapingConfig, ShapingLoop, Target, check
 from .core.config import default_config_dir, load_geometry, parse_spec, read_yaml
 from .core.geometry import TunnelGeometry
 from .model import (CalibrationPlan, ModelFit, Term, collect_calibration, fit_model, load_model,
-                    paper_prior, save_model)
+                    model_error, paper_prior, save_model)
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,10 @@ class Setup:
 
     def load_model(self, path=None) -> Term:
         return load_model(path or self.model_path, self.geometry.fans)
+
+    def model_error(self, path=None) -> float:
+        """The prior's calibration error per key point [N] (NaN if its file does not say)."""
+        return model_error(path or self.model_path)
 
     def make_target(self, spec, model: Term | None = None) -> Target:
         """The target of ``spec``; with a ``model``, one the fans can plainly not deliver (per the
@@ -103,15 +107,26 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
     """Run the shaping loop (the configured update rule; ``rule_overrides={'method': 'paper'}``
     for Algorithm 1) in-process on the simulated tunnel ``sim`` (default: ``make_sim(seed)``),
     scored against its true field."""
+    loop, target = shaping_loop_on_sim(setup, target_spec, seed=seed, model=model, u0=u0,
+                                       rule_overrides=rule_overrides, sim=sim)
+    n = setup.shaping.iterations if iterations is None else iterations
+    return loop.run(n, on_iteration), target
+
+
+def shaping_loop_on_sim(setup: Setup, target_spec, *, seed: int = 0, model: Term | None = None,
+                        u0=None, rule_overrides: dict | None = None, sim=None,
+                        on_progress=None) -> tuple[ShapingLoop, Target]:
+    """The shaping loop of ``shape_on_sim``, not yet run. The prior's calibration error (for the
+    warm start's check) is read from the model file when ``model`` is the setup's own."""
     sim = sim or setup.make_sim(seed=seed)
+    error = float('nan') if model is not None else setup.model_error()
     model = model or setup.load_model()
     target = setup.make_target(target_spec, model=model)
     kp = setup.geometry.key_points
     loop = ShapingLoop.from_settings(sim, model, target.values(kp), setup.shaping, u0=u0,
-                                     rule_overrides=rule_overrides,
-                                     truth=lambda U: sim.true_field(U, kp))
-    n = setup.shaping.iterations if iterations is None else iterations
-    return loop.run(n, on_iteration), target
+                                     rule_overrides=rule_overrides, model_error=error,
+                                     truth=lambda U: sim.true_field(U, kp), on_progress=on_progress)
+    return loop, target
 
 
 def format_iteration(rec: IterationRecord, names: Sequence[str]) -> str:
@@ -119,7 +134,9 @@ def format_iteration(rec: IterationRecord, names: Sequence[str]) -> str:
     true = '' if rec.true_error is None else f' true {np.sqrt(rec.true_error):6.3f} N'
     pwm = ' '.join(f'{n}={100 * u:4.1f}' for n, u in zip(names, rec.pwm))
     lam = '' if rec.step_size is None else f' step {rec.step_size:.3f}'
-    return f'k={rec.k:2d}  RMSE est {np.sqrt(rec.error):6.3f} N{true}{lam}  PWM% {pwm}'
+    return (f'k={rec.k:2d}  RMSE est {np.sqrt(rec.error):6.3f} N{true}{lam}  sweep {rec.plate_s:4.1f} s'
+            f'  PWM% {pwm}')
 
 
-__all__ = ['Setup', 'hidden_effects', 'calibrate', 'save_fit', 'shape_on_sim', 'format_iteration']
+__all__ = ['Setup', 'hidden_effects', 'calibrate', 'save_fit', 'shape_on_sim', 'shaping_loop_on_sim',
+           'format_iteration']

@@ -24,7 +24,7 @@ CASES = [
 @pytest.mark.parametrize('target,disabled', CASES, ids=[f'{t}-off:{",".join(d) or "none"}' for t, d in CASES])
 def test_error_after_six_iterations_is_at_most_half_of_iteration_zero(target, disabled, seed):
     setup = Setup.load(disabled=disabled)
-    records, _ = shape_on_sim(setup, target, iterations=6, seed=seed, rule_overrides=PAPER)
+    records, _ = shape_on_sim(setup, target, iterations=6, seed=seed, u0=0.5, rule_overrides=PAPER)
     assert [r.k for r in records] == list(range(7))
     assert records[6].true_error <= 0.5 * records[0].true_error
     # the GP estimate tracks the truth it is scored against
@@ -39,7 +39,7 @@ def test_error_after_six_iterations_is_at_most_half_of_iteration_zero(target, di
 def test_parabolic_profile_drives_the_central_fan_to_zero(seed):
     setup = Setup.load()
     cm = setup.geometry.fans.index('CM')
-    records, _ = shape_on_sim(setup, 'parabolic', iterations=12, seed=seed, rule_overrides=PAPER)
+    records, _ = shape_on_sim(setup, 'parabolic', iterations=12, seed=seed, u0=0.5, rule_overrides=PAPER)
     assert records[-1].pwm[cm] == 0.0
     edge = np.delete(records[-1].pwm, cm)
     assert np.all(edge > 0.4)  # the edge fans carry the ring of the parabola
@@ -47,7 +47,7 @@ def test_parabolic_profile_drives_the_central_fan_to_zero(seed):
 
 def test_gaussian_over_a_lower_fan_ends_with_that_fan_highest():
     setup = Setup.load()
-    records, _ = shape_on_sim(setup, 'gaussian@LM1', iterations=12, rule_overrides=PAPER)
+    records, _ = shape_on_sim(setup, 'gaussian@LM1', iterations=12, u0=0.5, rule_overrides=PAPER)
     edge = [setup.geometry.fans.index(n) for n in ('LM1', 'HM1', 'LM2', 'HM2', 'LM3', 'HM3')]
     final = records[-1].pwm
     assert int(np.argmax(final[edge])) == 0
@@ -55,7 +55,7 @@ def test_gaussian_over_a_lower_fan_ends_with_that_fan_highest():
 
 def test_error_plateaus_above_zero_because_the_rig_is_under_actuated():
     setup = Setup.load()
-    records, _ = shape_on_sim(setup, 'parabolic', iterations=12, rule_overrides=PAPER)
+    records, _ = shape_on_sim(setup, 'parabolic', iterations=12, u0=0.5, rule_overrides=PAPER)
     e = np.array([r.true_error for r in records])
     assert e[12] > 0.05 * e[0]          # 7 fans cannot match 317 points exactly
     assert e[12] >= 0.7 * e[7]          # and little changes after 6-7 iterations

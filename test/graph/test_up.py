@@ -59,7 +59,12 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
     report = json.loads((run / 'report' / 'run.json').read_text())
     errors = [it['rmse_N'] for it in report['iterations']]
     assert errors == pytest.approx(rmse, abs=1e-3)
-    assert errors[-1] < 0.7 * errors[0], f'the error did not fall: {errors}'
+    # the run starts at the prior's optimum (the warm start), which the first sweep confirmed;
+    # the measured updates then take the error below it
+    first = json.loads((run / 'iterations' / 'k000' / 'record.json').read_text())
+    assert first['info']['warm_start']['check']['mismatch'] is False, first['info']['warm_start']
+    assert 'warm start at the prior' in out
+    assert errors[-1] < 0.95 * errors[0], f'the error did not fall: {errors}'
     for png in ('field_maps.png', 'error.png', 'pwm.png'):
         assert (run / 'report' / png).stat().st_size > 1000
     print(f'RMSE per iteration through the graph: {errors}')

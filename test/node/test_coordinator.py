@@ -284,9 +284,25 @@ def graph(ros_context, setup, tmp_path):
     g.close()
 
 
-def test_iterations_through_the_service_lower_the_error(graph):
+def test_a_new_run_starts_at_the_prior_optimum_and_checks_the_first_sweep(graph):
+    from wind_shaper.coordination import start_at_prior_optimum
     graph.start_coordinator()
-    u0 = np.full(7, graph.setup.shaping.u0)
+    warm = start_at_prior_optimum(graph.setup, graph.setup.load_model(), 'parabolic')
+    r = graph.iterate()
+    assert r.success, r.message
+    np.testing.assert_allclose(r.pwm_before, warm.U, atol=1e-9)
+    # the warm start already sits near what the fans can do: the true error at iteration 0 is
+    # within 25 % of the prior's own prediction of it, far below the fixed start's
+    truth0 = graph.rig.rmse_true(r.pwm_before)
+    assert truth0 < 0.5 * graph.rig.rmse_true(np.full(7, 0.5)), truth0
+    record = graph.store().load_record(0)
+    assert record['info']['warm_start']['check']['mismatch'] is False
+    assert record['info']['plate_s'] > 0 and record['info']['settle_s'] >= 0
+
+
+def test_iterations_through_the_service_lower_the_error(graph, fixed_start_config):
+    graph.start_coordinator(config_dir=fixed_start_config)
+    u0 = np.full(7, 0.5)
     results = [graph.iterate() for _ in range(4)]
     for k, r in enumerate(results):
         assert r.success, r.message
@@ -388,18 +404,33 @@ def test_a_bad_target_is_refused_and_nothing_changes(graph, fault_row):
               'refused with the reason; target, run and fans unchanged', True)
 
 
-@pytest.fixture
-def paper_config(tmp_path):
-    """The shipped config with Algorithm 1 as the update rule (its step is gain / (k + 1))."""
+def edited_config(tmp_path, name, replacements):
+    """The shipped config copied to tmp_path/name with shaping.yaml's texts replaced."""
     import shutil
     from wind_shaper.core.config import default_config_dir
-    folder = tmp_path / 'paper_config'
+    folder = tmp_path / name
     shutil.copytree(default_config_dir(), folder)
     shaping = folder / 'shaping.yaml'
     text = shaping.read_text()
-    assert 'method: adaptive' in text or 'method: paper' in text
-    shaping.write_text(text.replace('method: adaptive', 'method: paper', 1))
+    for old, new in replacements:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    shaping.write_text(text)
     return str(folder)
+
+
+@pytest.fixture
+def paper_config(tmp_path):
+    """The shipped config with the paper's protocol: Algorithm 1 as the update rule (its step is
+    gain / (k + 1)), from every fan at 0.5."""
+    return edited_config(tmp_path, 'paper_config', [('method: adaptive', 'method: paper'),
+                                                    ('u0: warm', 'u0: 0.5')])
+
+
+@pytest.fixture
+def fixed_start_config(tmp_path):
+    """The shipped config starting every fan at 0.5 instead of the prior's optimum."""
+    return edited_config(tmp_path, 'fixed_start', [('u0: warm', 'u0: 0.5')])
 
 
 def test_step_gain_override_scales_the_step(graph, paper_config):
@@ -482,7 +513,7 @@ def test_update_rules_see_the_runs_history_across_restarts(graph, monkeypatch):
     assert seen[2].model is not None and seen[2].key_points.shape == (317, 2)
 
 
-@pytest.mark.parametrize('fault, words', [('off', 'reported LM1 at 0.000 instead of 0.500'),
+@pytest.mark.parametrize('fault, words', [('off', 'reported LM1 at 0.000 instead of 0.520'),
                                           ('silent', 'did not report their outputs')])
 def test_a_sweep_during_which_the_fans_leave_their_commands_is_discarded(graph, fault, words):
     graph.start_coordinator(sweep_duration_s=3.0)

@@ -22,7 +22,7 @@ def _common(p):
 
 
 def _cmd_shape(args) -> int:
-    from ..app import Setup, format_iteration, hidden_effects, shape_on_sim
+    from ..app import Setup, format_iteration, hidden_effects, shaping_loop_on_sim
     from ..model import load_plugins
     from ..report.run_report import write_report
     if not args.sim:
@@ -45,21 +45,38 @@ def _cmd_shape(args) -> int:
           f'disabled); {len(setup.geometry.key_points)} key points'
           + (f'; hidden effects: {", ".join(args.hidden)}' if args.hidden else ''))
     t0 = time.perf_counter()
-    records, target = shape_on_sim(
-        setup, args.target, iterations=args.iterations, seed=args.seed, model=model,
-        sim=sim,
-        rule_overrides=rule or None, on_iteration=lambda r: print(format_iteration(r, names), flush=True))
+    from .model import _u0
+    u0 = _u0(args.u0)
+    loop, target = shaping_loop_on_sim(setup, args.target, seed=args.seed, model=model, sim=sim,
+                                       u0=u0, rule_overrides=rule or None)
+    if loop.warm is not None:
+        print(loop.warm.text())
+        for note in loop.warm.notes:
+            print(f'note: {note}')
+
+    def show(rec):
+        print(format_iteration(rec, names), flush=True)
+        check = rec.info.get('warm_start', {}).get('check_text')
+        if check:
+            print(('WARNING: ' if rec.info['warm_start']['check']['mismatch'] else '') + check)
+
+    n = setup.shaping.iterations if args.iterations is None else args.iterations
+    records = loop.run(n, show)
     out = args.out or Path('reports') / time.strftime('shape-%Y%m%d-%H%M%S')
+    time_used = loop.tunnel_time()
     meta = {'target': target.describe(), 'target_spec': args.target, 'seed': args.seed,
             'disabled': args.disable, 'hidden_effects': [e.spec() for e in effects],
             'model': repr(model or setup.load_model()),
             'config_dir': str(setup.config_dir), 'update': {**dict(setup.shaping.update or {}), **rule},
-            'wall_time_s': round(time.perf_counter() - t0, 3)}
+            'warm_start': None if loop.warm is None else loop.warm.to_json(),
+            'tunnel_time_s': time_used, 'wall_time_s': round(time.perf_counter() - t0, 3)}
     write_report(out, records, setup.geometry, meta, u_max=setup.shaping.u_max)
     first, last = records[0], records[-1]
     if first.true_error is not None:
         print(f'true-field RMSE {np.sqrt(first.true_error):.3f} N -> {np.sqrt(last.true_error):.3f} N '
               f'after {last.k} iterations')
+    print(f'tunnel time: {time_used["plate_total_s"]:.0f} s of sweeping + '
+          f'{time_used["settle_total_s"]:.0f} s of fan settling over {len(records)} sweeps')
     print(f'report: {out}/ (run.json, field_maps.png, error.png, pwm.png)')
     return 0
 
@@ -138,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--method', choices=('adaptive', 'paper'), default=None,
                    help='update rule (default: shaping.yaml); paper = Algorithm 1 exactly')
     p.add_argument('--model', type=Path, default=None, help='model file (default: config/model.yaml)')
+    p.add_argument('--u0', default=None, metavar='warm|COMMAND',
+                   help="starting commands: 'warm' (the prior's optimum) or one command for every "
+                        'fan, e.g. 0.5 (default: shaping.yaml u0)')
     p.add_argument('--hidden', action='append', default=[], metavar='EFFECT[:k=v,...]',
                    help='switch on a simulator hidden effect, e.g. weak_fan:fan=HM2,gain=0.8 or '
                         'tilted_fan:fan=LM2,shift=0.04/0 (as `model diagnose --sim --hidden`); repeat '

@@ -172,6 +172,16 @@ def _cmd_diagnose(args) -> int:
     return 0
 
 
+def _u0(text):
+    """--u0: None (shaping.yaml), 'warm', or a command."""
+    if text is None or text == 'warm':
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise WindShaperError(f"--u0 must be 'warm' or a command between 0 and 1, e.g. 0.5; got {text!r}") from None
+
+
 def _cmd_add(args) -> int:
     from ..workbench.closed_loop import compare_closed_loop
     from ..workbench.commands import _added_text, add_command
@@ -201,7 +211,8 @@ def _cmd_add(args) -> int:
     def loop(models):
         return compare_closed_loop(setup, models, lambda s: setup.make_sim(seed=s, effects=effects),
                                    target=args.closed_loop, iterations=args.iterations,
-                                   seeds=tuple(range(args.loop_seeds)), rule_overrides=rule)
+                                   seeds=tuple(range(args.loop_seeds)), rule_overrides=rule,
+                                   u0=_u0(args.u0))
     save = args.save or (out / 'model.yaml')
     res = add_command(model, additions, data, setup.geometry, out, save=save, library=library,
                       closed_loop=loop if args.closed_loop else None, noise_sd=args.noise_sd)
@@ -322,4 +333,9 @@ def register(subparsers) -> None:
     p.add_argument('--iterations', type=int, default=6, help='closed-loop updates')
     p.add_argument('--loop-seeds', type=int, default=1, help='closed-loop runs per model (seeds 0..N-1)')
     p.add_argument('--rule', default=None, help='update rule for the closed loop (default: shaping.yaml)')
+    p.add_argument('--u0', default=None, metavar='warm|COMMAND',
+                   help="closed-loop start: 'warm' (each model's own optimum) or one command for "
+                        'every fan (the paper: 0.5; with --rule paper that is the paper\'s protocol, '
+                        'where the better model shows as the better search direction); default: '
+                        'shaping.yaml u0')
     p.set_defaults(func=_cmd_add)

@@ -15,7 +15,9 @@ from ..core.errors import ConfigError
 from ..estimation import FieldEstimate, FieldEstimator
 from ..model import Term
 from ..core.tunnel import Sweep, Tunnel
+from .sweep_length import SweepLength, SweepMonitor, SweepProgress
 from .update import PastIteration, UpdateInput, UpdateRule
+from .warm_start import WarmStart, first_step_rule, warm_start
 
 
 def mean_squared_error(field_values: np.ndarray, target: np.ndarray) -> float:
@@ -40,6 +42,12 @@ class IterationRecord:
     true_error: Optional[float] = None
     true_field: Optional[np.ndarray] = field(default=None, repr=False)
     info: dict = field(default_factory=dict)
+    settle_s: float = 0.0
+
+    @property
+    def plate_s(self) -> float:
+        """Plate time of this iteration's sweep [s]."""
+        return self.sweep.duration_s
 
     def to_json(self) -> dict:
         def arr(a):
@@ -52,7 +60,9 @@ class IterationRecord:
             'n_sweep_samples': len(self.sweep), 'n_gp_samples': self.estimate.n_used,
             'field_mean_N': arr(self.estimate.mean), 'field_std_N': arr(self.estimate.std),
             'target_N': arr(self.target), 'true_field_N': arr(self.true_field),
-            'max_key_point_gap_m': float(np.max(self.estimate.key_distance)), 'info': self.info,
+            'max_key_point_gap_m': float(np.max(self.estimate.key_distance)),
+            'plate_s': round(self.plate_s, 3), 'settle_s': round(self.settle_s, 3),
+            'info': self.info,
         }
 
 
@@ -62,12 +72,21 @@ class ShapingLoop:
     tunnel: anything satisfying ``Tunnel``; model: the prior (its Jacobian gives the search
     direction); target: (N,) desired force at the key points [N]; rule: the update rule
     (holds the command bounds); estimator: sweep -> field; u0: starting commands (scalar or
-    (n_fans,)); truth: optional U -> true field at the key points, for scoring on a simulator.
+    (n_fans,)), or 'warm' for the prior's bounded optimum (``warm_start``; ``model_error`` [N]
+    is the prior's calibration error, for the check of the first sweep); n_samples: the longest
+    sweep; sweep_length: when a sweep may end early (``SweepLength``; None: always n_samples;
+    needs a tunnel with ``sweep_chunks``); fan_settle_s: tunnel time the fans need after a new
+    command before the sweep [s] (counted, not waited: the simulator settles at once);
+    on_progress: called with a ``SweepProgress`` after every chunk of an adaptive sweep;
+    truth: optional U -> true field at the key points, for scoring on a simulator.
     """
 
     def __init__(self, tunnel: Tunnel, model: Term, target: np.ndarray, rule: UpdateRule,
                  estimator: FieldEstimator = FieldEstimator(), u0=0.5, n_samples: int = 1000,
-                 truth: Callable[[np.ndarray], np.ndarray] | None = None):
+                 truth: Callable[[np.ndarray], np.ndarray] | None = None, *,
+                 sweep_length: SweepLength | None = None, fan_settle_s: float = 0.0,
+                 model_error: float = float('nan'),
+                 on_progress: Callable[[SweepProgress], None] | None = None):
         geo = tunnel.geometry
         self.tunnel, self.model, self.rule, self.estimator = tunnel, model, rule, estimator
         self.key_points = geo.key_points
@@ -81,6 +100,16 @@ class ShapingLoop:
             raise ConfigError(f'n_samples must be >= 1, got {n_samples}')
         self.n_samples = n_samples
         self.truth = truth
+        self.sweep_length, self.on_progress = sweep_length, on_progress
+        self.fan_settle_s = float(fan_settle_s)
+        self.warm: WarmStart | None = None
+        if isinstance(u0, str):
+            if u0 != 'warm':
+                raise ConfigError(f"u0 must be a command (0..1) or 'warm'; got {u0!r}")
+            self.warm = warm_start(model, self.key_points, self.target, rule.bounds, self.enabled,
+                                   fan_names=geo.fans.names, model_error=model_error,
+                                   idle_below=getattr(rule, 'idle_below', 0.0))
+            u0 = self.warm.U
         self.U = rule.bounds.project(np.broadcast_to(np.asarray(u0, dtype=float), (geo.fans.n_fans,)),
                                      self.enabled)
         self.k = 0
@@ -89,17 +118,36 @@ class ShapingLoop:
     @classmethod
     def from_settings(cls, tunnel: Tunnel, model: Term, target: np.ndarray, shaping, *, u0=None,
                       rule_overrides: dict | None = None,
-                      truth: Callable[[np.ndarray], np.ndarray] | None = None) -> 'ShapingLoop':
+                      truth: Callable[[np.ndarray], np.ndarray] | None = None,
+                      model_error: float = float('nan'), sweep_length: SweepLength | None = None,
+                      on_progress=None) -> 'ShapingLoop':
         """The loop that ``shaping`` (a ``control.settings.ShapingConfig``) configures: its update
         rule (``rule_overrides={'method': 'paper'}`` for Algorithm 1), estimator, samples per
-        sweep and u0 (unless given)."""
+        sweep, sweep length, fan settle time and u0 (unless given)."""
         return cls(tunnel, model, target, shaping.make_rule(**(rule_overrides or {})),
                    shaping.make_estimator(), u0=shaping.u0 if u0 is None else u0,
-                   n_samples=shaping.samples_per_sweep, truth=truth)
+                   n_samples=shaping.samples_per_sweep, truth=truth,
+                   sweep_length=shaping.make_sweep_length() if sweep_length is None else sweep_length,
+                   fan_settle_s=shaping.fan_settle_s, model_error=model_error,
+                   on_progress=on_progress)
 
     def measure(self) -> tuple[np.ndarray, Sweep, FieldEstimate]:
         applied = self.tunnel.apply(self.U)
-        sweep = self.tunnel.sweep(self.n_samples)
+        policy = self.sweep_length
+        if policy is None or not policy.adaptive or not hasattr(self.tunnel, 'sweep_chunks'):
+            sweep = self.tunnel.sweep(self.n_samples)
+            return applied, sweep, self.estimator.estimate(sweep, self.key_points)
+        monitor = SweepMonitor(policy, self.estimator, self.key_points, policy.std_max(self.rule))
+        parts = []
+        for part in self.tunnel.sweep_chunks(self.n_samples, policy.chunk_samples):
+            parts.append(part)
+            monitor.add(part.positions)
+            progress = monitor.check(Sweep.concatenate(parts))
+            if self.on_progress is not None:
+                self.on_progress(progress)
+            if progress.enough:
+                return applied, Sweep.concatenate(parts), monitor.estimate
+        sweep = Sweep.concatenate(parts)   # the longest sweep: estimated whatever its std
         return applied, sweep, self.estimator.estimate(sweep, self.key_points)
 
     def iterate(self, update: bool = True) -> IterationRecord:
@@ -108,21 +156,30 @@ class ShapingLoop:
         delta = self.target - est.mean
         next_pwm = step_size = None
         info = {}
+        rule = self.rule
+        if self.k == 0 and not self.history and self.warm is not None:
+            check = self.warm.compare(est.mean, est.std)
+            info['warm_start'] = {**self.warm.to_json(), 'check': check.to_json(),
+                                  'check_text': check.text()}
+            rule = first_step_rule(rule, check)
         if update:
             J = (self.model.jacobian(self.U, self.key_points)
                  if getattr(self.rule, 'needs_jacobian', True) else None)
             history = tuple(PastIteration(r.pwm, r.estimate.mean, r.estimate.std, r.info)
                             for r in self.history)
-            step = self.rule.step(UpdateInput(self.k, self.U.copy(), delta, J, self.enabled, est.std,
-                                              model=self.model, key_points=self.key_points,
-                                              target=self.target, history=history))
-            next_pwm, step_size, info = step.U_next, step.step_size, dict(step.info)
+            step = rule.step(UpdateInput(self.k, self.U.copy(), delta, J, self.enabled, est.std,
+                                         model=self.model, key_points=self.key_points,
+                                         target=self.target, history=history))
+            next_pwm, step_size = step.U_next, step.step_size
+            info = {**dict(step.info), **info}
         true_field = true_error = None
         if self.truth is not None:
             true_field = self.truth(applied)
             true_error = mean_squared_error(true_field, self.target)
+        settle = self.fan_settle_s if (not self.history
+                                       or not np.array_equal(self.history[-1].pwm, applied)) else 0.0
         rec = IterationRecord(self.k, applied, est, self.target, mean_squared_error(est.mean, self.target),
-                              next_pwm, step_size, sweep, true_error, true_field, info)
+                              next_pwm, step_size, sweep, true_error, true_field, info, settle)
         self.history.append(rec)
         if update:
             self.U = next_pwm
@@ -146,3 +203,11 @@ class ShapingLoop:
                     on_iteration(rec)
                 break
         return self.history
+
+    def tunnel_time(self) -> dict:
+        """Tunnel time of the run so far [s]: plate (sweeping) and fan settling, per iteration
+        and in total."""
+        plate = [r.plate_s for r in self.history]
+        settle = [r.settle_s for r in self.history]
+        return {'plate_s': plate, 'settle_s': settle, 'plate_total_s': float(sum(plate)),
+                'settle_total_s': float(sum(settle)), 'total_s': float(sum(plate) + sum(settle))}

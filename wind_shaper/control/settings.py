@@ -12,6 +12,7 @@ from ..core.config import read_yaml, take_section
 from ..core.errors import ConfigError
 from ..estimation import FieldEstimator
 from .adaptive import AdaptiveUpdate
+from .sweep_length import SweepLength
 from .update import CommandBounds, PaperUpdate
 
 
@@ -20,10 +21,12 @@ class ShapingConfig:
     """The loop's settings (see ``config/shaping.yaml`` for meanings and units)."""
 
     iterations: int = 12
-    u0: float = 0.5
+    u0: float | str = 'warm'
     u_min: float = 0.0
     u_max: float = 0.65
     samples_per_sweep: int = 1000
+    fan_settle_s: float = 2.0
+    sweep: Mapping = None
     update: Mapping = None
     estimator: Mapping = None
     model_file: str = 'model.yaml'
@@ -35,9 +38,18 @@ class ShapingConfig:
             raise ConfigError(f'shaping.samples_per_sweep must be a whole number >= 10, got '
                               f'{self.samples_per_sweep!r}')
         self.bounds  # validates u_min/u_max
-        if not (self.u_min <= self.u0 <= self.u_max):
+        if isinstance(self.u0, str):
+            if self.u0 != 'warm':
+                raise ConfigError(f"shaping.u0 must be 'warm' (start at the prior's optimum) or a "
+                                  f'command in [u_min, u_max]; got {self.u0!r}')
+        elif isinstance(self.u0, bool) or not isinstance(self.u0, (int, float)):
+            raise ConfigError(f"shaping.u0 must be 'warm' or a number; got {self.u0!r}")
+        elif not (self.u_min <= self.u0 <= self.u_max):
             raise ConfigError(f'shaping.u0 = {self.u0} lies outside [u_min, u_max] = '
                               f'[{self.u_min}, {self.u_max}]')
+        if not (isinstance(self.fan_settle_s, (int, float)) and 0 <= self.fan_settle_s <= 600):
+            raise ConfigError(f'shaping.fan_settle_s must be 0..600 s; got {self.fan_settle_s!r}')
+        self.make_sweep_length()  # validates the sweep section
 
     @property
     def bounds(self) -> CommandBounds:
@@ -60,6 +72,9 @@ class ShapingConfig:
                 own['step_fraction'] = overrides['gain']
             return take_section(AdaptiveUpdate, {**own, 'bounds': self.bounds}, 'shaping.update')
         raise ConfigError(f'shaping.update.method {method!r} is unknown; use adaptive or paper')
+
+    def make_sweep_length(self) -> SweepLength:
+        return take_section(SweepLength, self.sweep, 'shaping.sweep')
 
     def make_estimator(self) -> FieldEstimator:
         return take_section(FieldEstimator, self.estimator, 'shaping.estimator')

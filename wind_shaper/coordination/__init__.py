@@ -9,9 +9,11 @@ coordinator node (``wind_shaper.nodes.coordinator``) only wires these to topics 
 from .experiment import (CHECKING, Experiment, ExperimentPorts, RowResult, run_experiment)
 from .iteration import (CANCELLED, COMMANDING, DONE, ESTIMATING, FAILED, IDLE, PROGRESS, SWEEPING,
                         UPDATING, FanWatch, FieldAnswer, IterationStopped,
-                        RigPorts, ShapingRun, past_iteration, run_iteration)
+                        RigPorts, ShapingRun, past_iteration, run_iteration,
+                        start_at_prior_optimum, tunnel_time)
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',
            'CANCELLED', 'PROGRESS', 'IterationStopped', 'FieldAnswer', 'RigPorts', 'FanWatch',
-           'ShapingRun', 'past_iteration', 'run_iteration', 'CHECKING', 'Experiment',
+           'ShapingRun', 'past_iteration', 'run_iteration', 'start_at_prior_optimum', 'tunnel_time',
+           'CHECKING', 'Experiment',
            'ExperimentPorts', 'RowResult', 'run_experiment']

@@ -23,6 +23,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 
 from ..control import PastIteration, UpdateInput
+from ..control.warm_start import WarmStart, first_step_rule, warm_start
 from ..core.config import read_yaml
 from ..core.errors import ConfigError, WindShaperError
 from ..core.tunnel import Sweep
@@ -151,6 +152,7 @@ class ShapingRun:
         self.command: np.ndarray | None = U.copy() if last_completed >= 0 else None
         self.notes = notes
         self.last_record_folder = None  # the folder of the iteration written last
+        self.warm: WarmStart | None = None  # iteration 0's warm start, until it has run
 
     @classmethod
     def open(cls, setup, run_root, run_name: str, target_spec: str, config_snapshot: dict | None = None
@@ -161,11 +163,18 @@ class ShapingRun:
         fan_names = list(geo.fans.names)
         setup.make_target(target_spec)  # refuse a bad spec (reach is checked with the prior below)
         bounds = setup.shaping.bounds
-        u0 = bounds.project(np.full(len(fan_names), float(setup.shaping.u0)), geo.fans.enabled)
+        snapshot = dict(config_snapshot or {})
+        if setup.shaping.u0 == 'warm':
+            # the prior's optimum for the requested target: used only if the run is new
+            warm = start_at_prior_optimum(setup, setup.load_model(), target_spec)
+            u0 = warm.U
+            snapshot['warm_start'] = {**warm.to_json(), 'predicted_N': np.round(warm.predicted, 6).tolist()}
+        else:
+            u0 = bounds.project(np.full(len(fan_names), float(setup.shaping.u0)), geo.fans.enabled)
         info = RunInfo(target_spec, tuple(fan_names), geo.key_points,
                        {'tunnel': read_yaml(setup.config_dir / 'tunnel.yaml'),
                         'shaping': read_yaml(setup.config_dir / 'shaping.yaml'),
-                        'model_file': str(setup.model_path), **(config_snapshot or {})})
+                        'model_file': str(setup.model_path), **snapshot})
         store = RunStore.open(run_root, run_name, info, initial_pwm=u0)
         state = store.state()
         notes = []
@@ -187,8 +196,18 @@ class ShapingRun:
                                      f'outside the bounds of shaping.yaml: clipped to {U.tolist()}'))
         last = state.last_completed
         last_rmse = float(store.load_record(last)['rmse_N']) if last >= 0 else float('nan')
-        return cls(setup, store, model, state.target, target, history, state.next_k, U, last,
-                   last_rmse, notes)
+        run = cls(setup, store, model, state.target, target, history, state.next_k, U, last,
+                  last_rmse, notes)
+        stored = store.info.config.get('warm_start')
+        if last < 0 and isinstance(stored, dict) and np.allclose(stored.get('U', []), U, atol=1e-9):
+            run.warm = WarmStart(U, np.asarray(stored['predicted_N'], float),
+                                 float(stored['predicted_rmse_N']),
+                                 float('nan') if stored.get('model_error_N') is None else float(stored['model_error_N']),
+                                 float(stored['start_rmse_N']), tuple(stored['at_upper']),
+                                 tuple(stored['at_lower']), list(stored.get('notes', [])))
+            notes.append(('info', f'iteration 0 {run.warm.text()}'))
+            notes += [('warning', n) for n in run.warm.notes]
+        return run
 
     # -- requests ---------------------------------------------------------------------------------
     def prepare(self, target_spec: str = '', step_gain: float = 0.0):
@@ -243,6 +262,12 @@ class ShapingRun:
         estimate = FieldEstimate(kp, mean, std, closest_samples(sweep, kp).key_distance,
                                  int(answer.n_used))
         target_values, model = self.target.values(kp), self.model
+        warm_info = {}
+        if k == 0 and self.warm is not None and not self.history:
+            check = self.warm.compare(mean, std)
+            warm_info = {'warm_start': {**self.warm.to_json(), 'check': check.to_json(),
+                                        'check_text': check.text()}}
+            rule = first_step_rule(rule, check)
         J = model.jacobian(U, kp)  # the rule's search direction and the prediction below
         step = rule.step(UpdateInput(k, U.copy(), target_values - mean, J, self.enabled, std,
                                      model=model, key_points=kp, target=target_values,
@@ -258,8 +283,9 @@ class ShapingRun:
             estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
             timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
                                      'estimator_compute_s': float(answer.compute_s),
-                                     **dict(step.info)})
+                                     **tunnel_time(stamps), **dict(step.info), **warm_info})
         self.last_record_folder = self.store.write_iteration(data)
+        self.warm = None
         self.history.append(past_iteration(U, mean, std, data.info))
         self.k, self.U = k + 1, U_next.copy()
         self.last_completed, self.last_rmse = k, data.rmse
@@ -271,9 +297,37 @@ class ShapingRun:
         text = (f'iteration {data.k}: RMSE {data.rmse:.4f} N, predicted after the update '
                 f'{data.rmse_predicted_after:.4f} N; step {data.step_size:.3f}; '
                 f'{len(data.sweep)} pairs')
+        if 'plate_s' in data.info:
+            text += f'; tunnel time {data.info["plate_s"]:.1f} s sweeping, {data.info["settle_s"]:.1f} s settling'
+        check = data.info.get('warm_start', {}).get('check_text')
+        if check:
+            text += ('; WARNING: ' if data.info['warm_start']['check']['mismatch'] else '; ') + check
         if data.info.get('stop'):
             text += f'; the update rule advises stopping: {data.info.get("stop_reason", "")}'
         return text
+
+
+def start_at_prior_optimum(setup, model, target_spec: str) -> WarmStart:
+    """The warm start of a new run: the prior's bounded optimum for ``target_spec``, with the
+    prior's calibration error from its model file."""
+    geo = setup.geometry
+    target = setup.make_target(target_spec)
+    rule = setup.shaping.make_rule()
+    return warm_start(model, geo.key_points, target.values(geo.key_points), setup.shaping.bounds,
+                      geo.fans.enabled, fan_names=geo.fans.names, model_error=setup.model_error(),
+                      idle_below=getattr(rule, 'idle_below', 0.0))
+
+
+def tunnel_time(stamps: dict) -> dict:
+    """An iteration's tunnel time from its stamps [s]: fans commanded until the sweep began
+    (the fans reporting the commands, settle_s, the estimator's begin) and the sweeps (the
+    plate's time, re-sweeps included)."""
+    out = {}
+    if 'started' in stamps and 'sweep_started' in stamps:
+        out['settle_s'] = round(max(0.0, stamps['sweep_started'] - stamps['started']), 3)
+    if 'sweep_started' in stamps and 'sweep_ended' in stamps:
+        out['plate_s'] = round(max(0.0, stamps['sweep_ended'] - stamps['sweep_started']), 3)
+    return out
 
 
 async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: int,
@@ -318,4 +372,4 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',
            'CANCELLED', 'PROGRESS', 'IterationStopped', 'FieldAnswer', 'RigPorts', 'FanWatch',
-           'ShapingRun', 'past_iteration', 'run_iteration']
+           'ShapingRun', 'past_iteration', 'run_iteration', 'start_at_prior_optimum', 'tunnel_time']

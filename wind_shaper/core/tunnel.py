@@ -49,6 +49,22 @@ class Sweep:
         ok = np.all(np.isfinite(self.positions), axis=1) & np.isfinite(self.forces)
         return Sweep(self.positions[ok], self.forces[ok], self.times[ok], self.pwm)
 
+    @property
+    def duration_s(self) -> float:
+        """Plate time of the sweep [s]: first to last sample plus one sample period."""
+        if len(self.times) < 2:
+            return 0.0
+        return float(self.times[-1] - self.times[0] + np.median(np.diff(self.times)))
+
+    @staticmethod
+    def concatenate(parts) -> 'Sweep':
+        """The samples of consecutive parts of one sweep at the same commands, in order."""
+        parts = list(parts)
+        if not parts:
+            raise SweepError('no sweep parts to join')
+        return Sweep(np.vstack([p.positions for p in parts]), np.concatenate([p.forces for p in parts]),
+                     np.concatenate([p.times for p in parts]), parts[0].pwm)
+
     def to_measurements(self) -> 'Measurements':
         return Measurements(np.tile(self.pwm, (len(self), 1)), self.positions, self.forces)
 

@@ -17,7 +17,7 @@ from .fan_effects import (FanCurve, FanElongation, FanGain, FanShape, FanShift, 
 from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
                            SwirlQuadratic, WallLayer)
 from .discrepancy import MODE_NAMES, Discrepancy, FieldFormula, command_features, feature_words
-from .modelfile import FORMAT_VERSION, load_model, model_from_text, save_model
+from .modelfile import FORMAT_VERSION, load_model, model_error, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
 from .calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
 
@@ -39,7 +39,7 @@ __all__ = [
     # discrepancy: what the library does not explain, without physics
     'Discrepancy', 'FieldFormula', 'command_features', 'feature_words', 'MODE_NAMES',
     # modelfile: model files
-    'save_model', 'load_model', 'model_from_text', 'FORMAT_VERSION',
+    'save_model', 'load_model', 'model_error', 'model_from_text', 'FORMAT_VERSION',
     # plugins: user terms, families and simulator effects
     'load_plugins', 'load_plugin', 'env_plugins', 'plugin_families', 'ENV_VAR', 'HOW_TO_LOAD',
     # calibration: the paper's calibration batch and its fit

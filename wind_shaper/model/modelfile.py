@@ -40,6 +40,22 @@ def load_model(path, fans: FanArray) -> Term:
     return model_from_text(text, fans, source=str(path))
 
 
+def model_error(path) -> float:
+    """The prior's error per key point [N] as its calibration measured it: the held-out RMSE
+    (``heldout_rmse_N``), else the fit's own (``rmse_N``); NaN when the file says neither."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return float('nan')
+    if not isinstance(doc, dict):
+        return float('nan')
+    for key in ('heldout_rmse_N', 'rmse_N'):
+        value = doc.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
+            return float(value)
+    return float('nan')
+
+
 def model_from_text(text: str, fans: FanArray, source: str = 'model text') -> Term:
     """Build a model from the text of a model file (e.g. one sent over a service).
     ``source`` names it in error messages."""

@@ -134,6 +134,19 @@ class SimulatedTunnel:
         forces = self.noise.forces(self._plate(state, true_pos), dt, rng)
         return Sweep(self.noise.positions(true_pos, rng), forces, np.arange(n) * dt, self._pwm.copy())
 
+    def sweep_chunks(self, max_samples: int = 1000, chunk_samples: int = 50, *,
+                     rng: np.random.Generator | None = None):
+        """One sweep of up to ``max_samples`` delivered ``chunk_samples`` at a time, along one
+        continuous path, so the caller can end it early (``control.sweep_length``); the chunks
+        joined are ``sweep(max_samples)`` with the same draws."""
+        if int(chunk_samples) < 1:
+            raise CommandError(f'chunk_samples must be >= 1; got {chunk_samples}')
+        full = self.sweep(max_samples, rng=rng)
+        step = int(chunk_samples)
+        for i in range(0, len(full), step):
+            part = slice(i, i + step)
+            yield Sweep(full.positions[part], full.forces[part], full.times[part], full.pwm)
+
     def measure_at(self, positions, samples_per_point: int = 20, *,
                    rng: np.random.Generator | None = None) -> np.ndarray:
         """Hold the plate still at each position (K, 2) [m] for ``samples_per_point`` samples and

@@ -21,7 +21,8 @@ from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
 __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
-           'MergingJets', 'ThermalGradient', 'OUTSIDE_LIBRARY', 'OTHER_FORM']
+           'MergingJets', 'ThermalGradient', 'UnequalCurves', 'OUTSIDE_LIBRARY', 'OTHER_FORM',
+           'PLANT_VARIATIONS']
 
 
 @dataclass(frozen=True)
@@ -218,11 +219,37 @@ class ThermalGradient(HiddenEffect):
         return self.slope * (points @ e) / 0.1
 
 
+@dataclass(frozen=True)
+class UnequalCurves(HiddenEffect):
+    """Every fan's ESC maps the command through its own throttle curve: fan j runs at
+    U_j ** p_j, with p_j = exp(``spread`` x z_j) and z_j standard normal draws of ``seed``
+    (clipped to +-2). At 50 % command a fan with p = 1.35 gives the thrust of 39 %, one with
+    p = 0.75 that of 59 %. The prior's calibration fits one curve per fan group, so the per-fan
+    shapes are model error the shaping loop must absorb. Used by the convergence benchmark as a
+    plant whose fans differ; the workbench is not yet tested on it."""
+
+    spread: float = 0.3
+    seed: int = 11
+    name: ClassVar[str] = 'unequal_curves'
+    bounds: ClassVar = {'spread': (0.0, 1.0)}
+    priority: ClassVar[int] = -1   # the throttle curve first, then a dead band acts on its output
+
+    def exponents(self, n_fans: int) -> np.ndarray:
+        z = np.clip(np.random.default_rng(int(self.seed)).standard_normal(n_fans), -2.0, 2.0)
+        return np.exp(self.spread * z)
+
+    def command(self, u, geometry):
+        u = np.clip(np.asarray(u, dtype=float), 0.0, None)
+        return u ** self.exponents(len(u))
+
+
 #: Effects of physics that no library family stands for, and in-library effects in another form.
 OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft, ThermalGradient)
 OTHER_FORM = (QuadraticSwirl, MergingJets)
+#: Plant variations for benchmarks (not in the workbench's detection table yet).
+PLANT_VARIATIONS = (UnequalCurves,)
 
-for _cls in OUTSIDE_LIBRARY + OTHER_FORM:
+for _cls in OUTSIDE_LIBRARY + OTHER_FORM + PLANT_VARIATIONS:
     if _cls.name in HIDDEN_EFFECTS and HIDDEN_EFFECTS[_cls.name] is not _cls:
         raise EffectError(f'hidden effect name {_cls.name!r} is taken')
     HIDDEN_EFFECTS[_cls.name] = _cls

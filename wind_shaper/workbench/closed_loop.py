@@ -1,7 +1,8 @@
 """Closed loop on the simulator: does the improved model shape the field better?
 
-The shaping loop (``wind_shaper.control.ShapingLoop``, as ``wind-shaper shape`` runs it) uses the model only through
-its Jacobian dPhi/dU, the search direction. ``compare_closed_loop`` runs the same loop with each
+The shaping loop (``wind_shaper.control.ShapingLoop``, as ``wind-shaper shape`` runs it) uses the model for its
+start (the warm start: the prior's optimum, unless ``u0`` is a command) and for its steps (the
+Jacobian dPhi/dU, the search direction). ``compare_closed_loop`` runs the same loop with each
 model as the prior, on the same simulated tunnel (same hidden effects, same seeds, so the same
 turbulence), and records the true-field RMSE to the target at every iteration [N].
 """

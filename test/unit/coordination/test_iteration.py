@@ -9,7 +9,7 @@ import pytest
 from wind_shaper.app import Setup
 from wind_shaper.coordination import (CANCELLED, COMMANDING, ESTIMATING, FAILED, SWEEPING,
                                       UPDATING, FanWatch, IterationStopped,
-                                      ShapingRun, run_iteration)
+                                      ShapingRun, run_iteration, start_at_prior_optimum)
 from wind_shaper.core.errors import WindShaperError
 from sim_ports import SimPorts
 
@@ -26,11 +26,19 @@ def open_run(setup, tmp_path, target='parabolic', name='r'):
 def test_an_iteration_goes_through_its_states_writes_the_run_and_advances(setup, tmp_path):
     run = open_run(setup, tmp_path)
     assert run.k == 0 and run.command is None and math.isnan(run.last_rmse)
+    # a new run starts at the prior's optimum for its target, not at a fixed command
+    warm = start_at_prior_optimum(setup, setup.load_model(), 'parabolic')
+    assert run.warm is not None and np.allclose(run.U, warm.U)
+    assert not np.allclose(warm.U[setup.geometry.fans.enabled], 0.5, atol=0.01)
     ports = SimPorts(setup)
     _, rule = run.prepare()
     data = asyncio.run(run_iteration(run, ports, rule, max_sweeps=3))
     assert ports.states == [COMMANDING, SWEEPING, ESTIMATING, UPDATING]
-    assert np.allclose(ports.commanded[0], 0.5)
+    assert np.allclose(ports.commanded[0], warm.U)
+    # the first sweep is checked against the prediction, and the tunnel time is counted
+    check = data.info['warm_start']['check']
+    assert check['mismatch'] is False and check['rms_difference_N'] > 0
+    assert data.info['plate_s'] >= 0 and data.info['settle_s'] >= 0
     assert run.k == 1 and np.allclose(run.U, data.pwm_after) and np.allclose(run.command, run.U)
     assert run.last_rmse == pytest.approx(data.rmse)
     lo, hi = setup.shaping.u_min, setup.shaping.u_max
@@ -57,7 +65,7 @@ def test_too_many_refusals_fail_and_nothing_advances(setup, tmp_path):
     with pytest.raises(IterationStopped) as stop:
         asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=2))
     assert stop.value.state == FAILED and 'after 2 sweep(s)' in str(stop.value)
-    assert run.k == 0 and np.allclose(run.U, 0.5)
+    assert run.k == 0 and np.allclose(run.U, start_at_prior_optimum(setup, setup.load_model(), 'parabolic').U)
     assert open_run(setup, tmp_path).k == 0  # nothing written
 
 

@@ -186,3 +186,14 @@ def test_effects_reach_calibration_and_sweeps(perfect, rig, lone):
     assert sim.measure_at(hub)[0] == pytest.approx(sim.true_field(lone('LM1'), hub)[0])
     sweep = sim.sweep(200)
     assert np.allclose(sweep.forces, sim.true_field(sweep.pwm, sweep.positions))
+
+
+def test_unequal_curves_give_every_fan_its_own_throttle_curve():
+    from wind_shaper.sim import make_effect
+    e = make_effect('unequal_curves', spread=0.3, seed=11)
+    p = e.exponents(7)
+    assert np.all(p > 0) and np.ptp(p) > 0.3 and np.all(np.abs(np.log(p)) <= 0.6 + 1e-12)
+    u = np.full(7, 0.5)
+    np.testing.assert_allclose(e.command(u, None), 0.5 ** p)
+    np.testing.assert_allclose(e.command(np.ones(7), None), 1.0)   # full command is full thrust
+    assert make_effect('unequal_curves', spread=0.0).command(u, None) == pytest.approx(u)

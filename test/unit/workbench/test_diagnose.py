@@ -55,7 +55,7 @@ def test_each_hidden_effect_is_found_fitted_and_pays_off(effect, diagnosed, refe
     assert d.steps_[0].finding and expected.split('[')[0].split('_')[0] in d.steps_[0].candidate.name
     loop = compare_closed_loop(wb_setup, {'before': reference, 'after': d.final_.model},
                                lambda seed: wb_setup.make_sim(seed=seed, effects=[hidden]),
-                               target=TARGET.get(effect, 'uniform'), iterations=6,
+                               target=TARGET.get(effect, 'uniform'), iterations=6, u0=0.5,
                                rule_overrides={'method': 'paper'})
     at6 = loop.at(6)
     assert at6['after'] < at6['before'], at6

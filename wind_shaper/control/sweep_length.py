@@ -1,0 +1,99 @@
+"""How long to sweep: until the field estimate is good enough for the next step (``SweepLength``).
+
+The paper sweeps 1000 samples (20 s) every iteration whatever the estimate needs. Here the plate
+sweeps on in chunks and the field is estimated after each one past a hard minimum; the sweep ends
+as soon as every key point has been passed (coverage 1.0 at the estimator's ``max_gap``) and the
+GP's posterior standard deviation at every key point is below ``std_max``. That threshold is tied
+to the update's stopping rule: ``std_factor`` x its noise floor, the error a sweep is taken to
+resolve at best; estimating finer than that buys the next step nothing. ``samples_per_sweep``
+stays the longest a sweep may last.
+
+Samples are counted at the tunnel's sample rate (the rig: 50 Hz, so 50 samples = 1 s of plate
+time); forces and standard deviations [N].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.errors import ConfigError, SweepError
+from ..estimation import Coverage
+
+
+@dataclass(frozen=True)
+class SweepProgress:
+    """Where a sweep stands: samples so far, share of key points passed [0..1], the largest
+    posterior std at a key point [N] (NaN before an estimate), and whether it may end."""
+
+    n_samples: int
+    coverage: float
+    std_max: float
+    enough: bool
+
+    def text(self) -> str:
+        std = '-' if not np.isfinite(self.std_max) else f'{self.std_max:.3f} N'
+        return f'{self.n_samples} samples, coverage {100 * self.coverage:.0f} %, largest std {std}'
+
+
+@dataclass(frozen=True)
+class SweepLength:
+    """adaptive: end a sweep early when the estimate is good enough (False: always the full
+    ``samples_per_sweep``); min_samples: never fewer (keeps coverage honest: a plate that
+    lingers near the key points must still cross the area); chunk_samples: estimate again after
+    every this many samples; std_factor: the largest posterior std allowed at a key point, as a
+    multiple of the stopping rule's noise floor [N]."""
+
+    adaptive: bool = True
+    min_samples: int = 300
+    chunk_samples: int = 50
+    std_factor: float = 1.2
+
+    def __post_init__(self):
+        if not (isinstance(self.min_samples, int) and self.min_samples >= 10):
+            raise ConfigError(f'shaping.sweep.min_samples must be a whole number >= 10; got '
+                              f'{self.min_samples!r}')
+        if not (isinstance(self.chunk_samples, int) and self.chunk_samples >= 1):
+            raise ConfigError(f'shaping.sweep.chunk_samples must be a whole number >= 1; got '
+                              f'{self.chunk_samples!r}')
+        if not self.std_factor > 0:
+            raise ConfigError(f'shaping.sweep.std_factor must be > 0; got {self.std_factor!r}')
+
+    def std_max(self, rule) -> float:
+        """The threshold [N] for ``rule`` (its stopping rule's floor; 0.05 N without one)."""
+        stopping = getattr(rule, 'stopping', None)
+        floor = getattr(stopping, 'floor', 0.05) if stopping is not None else 0.05
+        return self.std_factor * float(floor)
+
+
+class SweepMonitor:
+    """Follows one sweep as its samples arrive: coverage of the key points, and (past the
+    minimum, at full coverage) the estimate's largest std. ``add(positions)`` then ``check()``."""
+
+    def __init__(self, policy: SweepLength, estimator, key_points, std_max: float):
+        self.policy, self.estimator = policy, estimator
+        self.key_points = np.asarray(key_points, dtype=float)
+        self.std_max = float(std_max)
+        self.coverage = Coverage(self.key_points, estimator.max_gap)
+        self.n = 0
+        self.estimate = None
+
+    def add(self, positions) -> None:
+        positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+        self.coverage.add(positions)
+        self.n += len(positions)
+
+    def check(self, sweep) -> SweepProgress:
+        """Progress after the samples of ``sweep`` (everything so far); estimates the field when
+        the minimum is reached and every key point is passed."""
+        if self.n < self.policy.min_samples or self.coverage.share < 1.0:
+            return SweepProgress(self.n, self.coverage.share, float('nan'), False)
+        try:
+            self.estimate = self.estimator.estimate(sweep, self.key_points)
+        except SweepError:
+            return SweepProgress(self.n, self.coverage.share, float('nan'), False)
+        worst = float(np.max(self.estimate.std))
+        return SweepProgress(self.n, self.coverage.share, worst, worst <= self.std_max)
+
+
+__all__ = ['SweepLength', 'SweepMonitor', 'SweepProgress']

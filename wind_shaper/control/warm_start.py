@@ -1,0 +1,202 @@
+"""Start a run at the prior's own optimum instead of a fixed command (``warm_start``), and check
+the first sweep against what the prior predicted there (``WarmStart.compare``).
+
+Every sweep costs tunnel time; a run that starts at U0 = 0.5 on every fan spends its first one or
+two sweeps getting near the optimum that the calibrated prior could have told it beforehand. The
+warm start solves the bounded least-squares problem of the prior,
+
+    U0 = argmin_U mean_i (M(U, z_i) - F_des,i)^2   over u_min <= U <= u_max (disabled fans 0),
+
+with the same solver as the adaptive update's steps (exact in the fans' thrusts where the prior
+is separable, then Gauss-Newton in PWM) and a trust-region-reflective polish. How far to trust
+it comes from the prior's calibration: its held-out error per key point ``model_error`` [N].
+
+After the first sweep, the measured field is compared with the prediction. A difference far
+beyond what the prior's error and the estimate's noise allow means the prior does not describe
+this tunnel (another tunnel's model, a fan swapped, a new straightener): the run says so and the
+first update leans on the measurement, with a smaller first step.
+
+Commands U are fractions 0..1 of full PWM, one per fan; forces [N] at the key points [m].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..core.errors import ConfigError
+from .update import CommandBounds, UpdateInput
+
+#: The first sweep disagrees with the prediction when its RMS difference exceeds this many times
+#: what the prior's error and the estimate's noise allow.
+MISMATCH_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class PredictionCheck:
+    """The first sweep against the warm start's prediction: RMS difference over the key points
+    [N], what it may be (prior error and estimate noise in quadrature) [N], their ratio and the
+    verdict."""
+
+    rms_difference: float
+    expected: float
+    ratio: float
+    mismatch: bool
+    checked: bool = True
+
+    def text(self) -> str:
+        if not self.checked:
+            return (f'the first sweep differs from the prior\'s prediction by {self.rms_difference:.3f} N '
+                    f'RMS; not judged: the prior\'s model file records no calibration error '
+                    f'(heldout_rmse_N or rmse_N; `wind-shaper calibrate` writes it)')
+        if self.mismatch:
+            return (f'the first sweep differs from the prior\'s prediction by {self.rms_difference:.3f} N '
+                    f'RMS, {self.ratio:.1f} x what the prior\'s error and the estimate noise allow '
+                    f'({self.expected:.3f} N): the prior does not match this tunnel (another '
+                    f'tunnel\'s model, a fan changed?). The update now leans on the measured field '
+                    f'(first step halved); recalibrate with `wind-shaper calibrate` when you can')
+        return (f'the first sweep agrees with the prior\'s prediction: {self.rms_difference:.3f} N RMS '
+                f'difference, {self.ratio:.1f} x the expected {self.expected:.3f} N')
+
+    def to_json(self) -> dict:
+        def num(v):
+            return round(v, 5) if np.isfinite(v) else None
+        return {'rms_difference_N': num(self.rms_difference), 'expected_N': num(self.expected),
+                'ratio': num(self.ratio), 'mismatch': bool(self.mismatch), 'checked': bool(self.checked)}
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """The prior's optimum: commands ``U`` (n_fans,); ``predicted`` (N,) field there [N];
+    ``predicted_rmse`` against the target [N]; ``model_error`` the prior's error per key point
+    [N] (NaN if unknown); ``at_upper``, ``at_lower``: names of enabled fans on a bound;
+    ``start_rmse``: the prior's RMSE at the fixed start it replaces [N]."""
+
+    U: np.ndarray
+    predicted: np.ndarray
+    predicted_rmse: float
+    model_error: float
+    start_rmse: float
+    at_upper: tuple = ()
+    at_lower: tuple = ()
+    notes: list = field(default_factory=list)
+
+    @property
+    def on_bound(self) -> bool:
+        return bool(self.at_upper)
+
+    def text(self) -> str:
+        err = ('' if not np.isfinite(self.model_error) else
+               f' +- {self.model_error:.3f} N per key point (the prior\'s calibration error)')
+        return (f'warm start at the prior\'s optimum: predicted RMSE {self.predicted_rmse:.3f} N{err}; '
+                f'the prior gives {self.start_rmse:.3f} N at the fixed start')
+
+    def compare(self, mean, std=None, factor: float = MISMATCH_FACTOR) -> PredictionCheck:
+        """The first sweep's estimate (mean, std at the key points [N]) against the prediction."""
+        mean = np.asarray(mean, dtype=float)
+        rms = float(np.sqrt(np.mean((mean - self.predicted) ** 2)))
+        if not np.isfinite(self.model_error):   # nothing to judge the difference by
+            return PredictionCheck(rms, float('nan'), float('nan'), False, checked=False)
+        s2 = 0.0 if std is None else float(np.mean(np.asarray(std, dtype=float) ** 2))
+        expected = float(np.sqrt(self.model_error ** 2 + s2))
+        ratio = rms / expected if expected > 0 else float('inf')
+        return PredictionCheck(rms, expected, ratio, bool(ratio > factor))
+
+    def to_json(self) -> dict:
+        return {'U': np.round(self.U, 6).tolist(), 'predicted_rmse_N': round(self.predicted_rmse, 5),
+                'model_error_N': None if not np.isfinite(self.model_error) else round(self.model_error, 5),
+                'start_rmse_N': round(self.start_rmse, 5), 'at_upper': list(self.at_upper),
+                'at_lower': list(self.at_lower), 'notes': list(self.notes)}
+
+
+def warm_start(model, key_points, target, bounds: CommandBounds, enabled, *, fan_names=None,
+               start=0.5, model_error: float = float('nan'), idle_below: float = 0.02,
+               polish_max_fans: int = 100) -> WarmStart:
+    """The prior's bounded optimum for ``target`` (N,) [N] at ``key_points`` (N, 2) [m] (see the
+    module docstring). ``start``: the fixed start it replaces (scalar or (n_fans,)); a command
+    below ``idle_below`` is sent as u_min, as the adaptive update does."""
+    from .adaptive import AdaptiveUpdate
+    on = np.asarray(enabled, dtype=bool)
+    Z = np.asarray(key_points, dtype=float)
+    target = np.asarray(target, dtype=float)
+    n = len(on)
+    names = list(fan_names) if fan_names is not None else [f'fan{j}' for j in range(n)]
+    U_start = bounds.project(np.broadcast_to(np.asarray(start, dtype=float), (n,)), on)
+    if not on.any():
+        raise ConfigError('no fan is enabled: nothing to start')
+
+    def rmse(U):
+        return float(np.sqrt(np.mean((np.asarray(model(U, Z), dtype=float) - target) ** 2)))
+
+    # the adaptive update's own bounded step from the fixed start, with the whole box as its
+    # trust region, repeated until it stops moving (each pass relinearises the prior)
+    rule = AdaptiveUpdate(bounds=bounds, radius=bounds.u_max - bounds.u_min,
+                          radius_max=max(bounds.u_max - bounds.u_min, 0.65), secant=False,
+                          damping=1e-3, idle_below=idle_below, stop_factor=0.0)
+    U = U_start.copy()
+    for _ in range(4):
+        delta = target - np.asarray(model(U, Z), dtype=float)
+        U_new = rule.step(UpdateInput(0, U.copy(), delta, None, on, None, model=model,
+                                      key_points=Z, target=target)).U_next
+        moved = float(np.max(np.abs(U_new - U)))
+        if rmse(U_new) < rmse(U):
+            U = U_new
+        if moved < 1e-4:
+            break
+    if on.sum() <= polish_max_fans:
+        U = _polish(model, Z, target, bounds, on, U)
+    if idle_below > bounds.u_min:
+        U = np.where(on & (U < idle_below), bounds.u_min, U)
+    U = bounds.project(U, on)
+    predicted = np.asarray(model(U, Z), dtype=float)
+    tol = 1e-3 * (bounds.u_max - bounds.u_min)
+    at_upper = tuple(nm for nm, u, e in zip(names, U, on) if e and u >= bounds.u_max - tol)
+    at_lower = tuple(nm for nm, u, e in zip(names, U, on) if e and u <= bounds.u_min + tol)
+    ws = WarmStart(U, predicted, float(np.sqrt(np.mean((predicted - target) ** 2))),
+                   float(model_error), rmse(U_start), at_upper, at_lower)
+    if at_upper:
+        ws.notes.append(f'the prior\'s optimum puts {", ".join(at_upper)} at u_max = {bounds.u_max:g}: '
+                        f'per the prior the target needs more than those fans give, so the run '
+                        f'starts on the bound and the measured field decides the rest (raise '
+                        f'shaping.u_max if the fans allow it, or lower the target)')
+    return ws
+
+
+def _polish(model, Z, target, bounds, on, U0):
+    """Trust-region-reflective least squares on the enabled fans from U0 (the prior's analytic
+    Jacobian); U0 if it does not improve."""
+    from scipy.optimize import least_squares
+    idx = np.flatnonzero(on)
+    U_full = U0.copy()
+
+    def fun(x):
+        U_full[idx] = x
+        return np.asarray(model(U_full, Z), dtype=float) - target
+
+    def jac(x):
+        U_full[idx] = x
+        return np.asarray(model.jacobian(U_full, Z), dtype=float)[:, idx]
+
+    x0 = np.clip(U0[idx], bounds.u_min, bounds.u_max)
+    try:
+        sol = least_squares(fun, x0, jac=jac, bounds=(bounds.u_min, bounds.u_max), method='trf',
+                            xtol=1e-10, ftol=1e-12, max_nfev=200)
+    except (ValueError, np.linalg.LinAlgError):
+        return U0
+    out = U0.copy()
+    out[idx] = sol.x
+    if np.mean(fun(sol.x) ** 2) <= np.mean(fun(x0) ** 2):
+        return out
+    return U0
+
+
+def first_step_rule(rule, check: PredictionCheck | None):
+    """The update rule for the first update after a warm start: with a trust radius, halved when
+    the first sweep did not match the prediction; the rule itself otherwise."""
+    if check is None or not check.mismatch or not hasattr(rule, 'radius'):
+        return rule
+    half = max(rule.radius_min, 0.5 * rule.radius)
+    return replace(rule, radius=half)
+
+
+__all__ = ['WarmStart', 'PredictionCheck', 'warm_start', 'first_step_rule', 'MISMATCH_FACTOR']
