@@ -68,3 +68,20 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
     for png in ('field_maps.png', 'error.png', 'pwm.png'):
         assert (run / 'report' / png).stat().st_size > 1000
     print(f'RMSE per iteration through the graph: {errors}')
+
+
+@pytest.mark.timeout(240)
+def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
+    # the simulated plate would sweep for 20 s; the coordinator watches the estimate (coverage
+    # and largest std, live in its status) and ends the sweep through the stop service
+    u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
+           '--set', 'coordinator.sweep_duration_s=20.0', '--set', 'coordinator.sweep_min_s=3.0',
+           '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3')
+    assert u.wait(220) == 0, u.output()[-6000:]
+    out = u.output()
+    m = re.search(r'the estimate is good enough after ([\d.]+) s \(coverage 100 %, largest std '
+                  r'([\d.]+) N <= ([\d.]+) N\): ending the sweep', out)
+    assert m, out[-5000:]
+    assert float(m.group(2)) <= float(m.group(3))
+    record = json.loads((tmp_path / 'runs' / 'short-sweep' / 'iterations' / 'k000' / 'record.json').read_text())
+    assert 3.0 <= record['info']['plate_s'] < 19.0, record['info']

@@ -71,6 +71,7 @@ class FakeRig(Node):
         self.commands = []
         self.sweeps = 0
         self.refuse_estimates = 0
+        self.peeks = 0
         self.stop = threading.Event()
         self.sweeping = False
         self.fault = None
@@ -156,6 +157,11 @@ class FakeRig(Node):
         return response
 
     def _handle_estimate(self, request, response):
+        if request.peek:   # how far the sweep is: this fake never says 'enough'
+            self.peeks += 1
+            response.success = False
+            response.message = 'not enough yet'
+            return response
         sweep = self.sim.sweep(self.setup.shaping.samples_per_sweep)
         if self.refuse_estimates > 0:  # as the real estimator does when a sweep left gaps:
             self.refuse_estimates -= 1  # refused, with the pairs it could make

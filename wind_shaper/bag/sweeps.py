@@ -376,7 +376,8 @@ def _write_merged(bag: BagWriter, events, force_events, fan_names, mocap_from_tu
         elif topic == names.STATUS:
             bag.write(topic, t_ns, T[types.ITERATION_STATUS](
                 header=header(t_ns), iteration=payload['iteration'], state=payload['state'],
-                progress=float(payload['progress']), samples=int(payload['samples']), message='',
+                progress=float(payload['progress']), samples=int(payload['samples']),
+                coverage=float('nan'), max_std=float('nan'), message='',
                 target='', fan_names=list(fan_names) if payload['pwm'] else [],
                 pwm=np.asarray(payload['pwm'], dtype=np.float64), rmse=float('nan'), run_folder=''))
         elif topic in (names.FAN_COMMAND, names.FAN_APPLIED):

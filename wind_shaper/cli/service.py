@@ -115,8 +115,13 @@ def _progress_line(status) -> str:
     bar_len = 20
     done = int(round(bar_len * min(max(status.progress, 0.0), 1.0)))
     samples = f'  {status.samples} samples' if status.samples else ''
+    live = ''
+    if status.state == 'sweeping' and math.isfinite(getattr(status, 'coverage', math.nan)):
+        live = f', coverage {100 * status.coverage:3.0f} %'
+        if math.isfinite(status.max_std):
+            live += f', largest std {status.max_std:.3f} N'
     return (f'k={status.iteration:<3d} {status.state:<11s} [{"#" * done}{"-" * (bar_len - done)}] '
-            f'{100 * status.progress:3.0f}%{samples}')
+            f'{100 * status.progress:3.0f}%{samples}{live}')
 
 
 def format_result(r) -> str:

@@ -44,6 +44,7 @@ from ..app import Setup
 from ..coordination import FanWatch, FieldAnswer, IterationStopped, ShapingRun, run_iteration
 from ..coordination.iteration import PROGRESS
 from ..core.errors import ConfigError, WindShaperError
+from ..estimation import coverage_share
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_from_msg, fan_command, pwm_from_command, sweep_from_msg
@@ -67,6 +68,16 @@ class CoordinatorParams:
     sweep_duration_s: float = param(20.0, 'how long one sweep lasts [s]', low=0.1, high=3600.0)
     sweep_service: str = param(names.SWEEP, "wind_shaper_msgs/Sweep service that moves the plate; "
                                "'' = wait sweep_duration_s for an operator to move it")
+    stop_sweep_service: str = param(names.STOP_SWEEP, "std_srvs/Trigger service that ends the "
+                                    "running sweep once the estimate is good enough; '' = none "
+                                    '(the plate moves on for sweep_duration_s)')
+    sweep_min_s: float = param(6.0, 'with shaping.sweep.adaptive a sweep lasts at least this long '
+                               '[s]; then it ends once every key point is passed and the estimate '
+                               'is good enough (sweep_duration_s is the longest)', low=0.1,
+                               high=3600.0)
+    sweep_check_s: float = param(1.0, 'during a sweep, ask the field_estimator this often how far '
+                                 'it is (coverage, largest std: live in the status) [s]',
+                                 low=0.1, high=60.0)
     place_service: str = param(names.PLACE, "wind_shaper_msgs/Place service that brings the plate "
                                "to a held-plate calibration point; '' = a person carries it there")
     settle_s: float = param(2.0, 'wait after the fans report the commands, before sweeping [s]',
@@ -136,6 +147,13 @@ class CoordinatorNode(Node):
                                                    callback_group=self._cb)
         self._sweep_client = (self.create_client(Sweep, p.sweep_service, callback_group=self._cb)
                               if p.sweep_service else None)
+        self._stop_sweep_client = (self.create_client(Trigger, p.stop_sweep_service,
+                                                      callback_group=self._cb)
+                                   if p.sweep_service and p.stop_sweep_service else None)
+        self._sweep_policy = self.setup.shaping.make_sweep_length()
+        self._sweep_std_max = self._sweep_policy.std_max(self.setup.shaping.make_rule())
+        self._coverage_radius = self.setup.shaping.make_estimator().max_gap
+        self._coverage = self._max_std = math.nan
         self.create_service(RunIteration, names.RUN_ITERATION, self._handle_run_iteration,
                             callback_group=self._cb)
         self.create_service(Trigger, names.CANCEL_ITERATION, self._handle_cancel_iteration,
@@ -226,6 +244,7 @@ class CoordinatorNode(Node):
             msg = IterationStatus(
                 iteration=int(self._status_k), state=self._state,
                 progress=float(progress), samples=int(self._samples), message=self._message,
+                coverage=float(self._coverage), max_std=float(self._max_std),
                 target=run_.target_spec, fan_names=self._fan_names,
                 pwm=[float(u) for u in U], rmse=float(run_.last_rmse),
                 run_folder=str(run_.store.folder))
@@ -280,6 +299,7 @@ class CoordinatorNode(Node):
                                    f'begin_sweep refused: {begin.message}')
         with self._lock:
             self._samples = 0
+            self._coverage = self._max_std = math.nan
 
     async def sweep(self, k: int, attempt: int) -> None:
         """Move the plate once (sweep service) or give an operator the sweep's duration; a sweep
@@ -309,13 +329,18 @@ class CoordinatorNode(Node):
         p, duration = self.params, self.sweep_duration_s
         doing = self._collect.where(k) if self._collect.active else f'iteration {k}'
         again = '' if attempt == 1 else f' (sweep {attempt} of {p.max_sweeps})'
+        # an iteration's sweep is watched (live coverage and std) and, with shaping.sweep.adaptive,
+        # ends once the estimate is good enough; a designed experiment's rows sweep in full
+        watched = not self._collect.active
         if self._sweep_client is not None:
             self.set_state(IterationStatus.STATE_SWEEPING,
                            f'{doing}: sweeping for {duration:g} s{again}')
-            moved = await self._call(self._sweep_client,
-                                     Sweep.Request(duration_s=duration, seed=0),
-                                     'the sweep (sim_tunnel or motion stage)',
-                                     duration + p.service_timeout_s)
+            what = 'the sweep (sim_tunnel or motion stage)'
+            if not watched:
+                moved = await self._call(self._sweep_client, Sweep.Request(duration_s=duration, seed=0),
+                                         what, duration + p.service_timeout_s)
+            else:
+                moved = await self._watched_sweep(k, duration, what)
             if not moved.success:
                 raise IterationStopped(IterationStatus.STATE_FAILED,
                                        f'the sweep failed: {moved.message}')
@@ -323,8 +348,100 @@ class CoordinatorNode(Node):
             self.set_state(IterationStatus.STATE_SWEEPING,
                            f'{doing}: move the plate over the whole area now '
                            f'({duration:g} s){again}')
-            await self._waits.wait(None, self._waits.remaining(duration))
+            if watched:
+                if await self._watch_sweep(k, duration, None):
+                    self.set_state(IterationStatus.STATE_SWEEPING,
+                                   f'{doing}: enough samples, you can stop sweeping')
+            else:
+                await self._waits.wait(None, self._waits.remaining(duration))
             self.check_boundary()
+
+    async def _watched_sweep(self, k: int, duration: float, what: str):
+        """The sweep service's motion, watched; stopped early (stop_sweep_service) when the
+        estimate is good enough. Returns the sweep service's response."""
+        p, client = self.params, self._sweep_client
+        if not client.service_is_ready():
+            give_up = time.monotonic() + p.service_timeout_s
+            while not client.service_is_ready() and time.monotonic() < give_up:
+                if await self._waits.wait(None, 0.1) == 'cancelled':
+                    self._waits.raise_for('cancelled', '')
+            if not client.service_is_ready():
+                raise IterationStopped(IterationStatus.STATE_FAILED,
+                                       f'no {client.srv_name} service within {p.service_timeout_s:g} s: '
+                                       f'is {what} running?')
+        future = client.call_async(Sweep.Request(duration_s=duration, seed=0))
+        try:
+            enough = await self._watch_sweep(k, duration, future)
+            if enough and not future.done() and self._stop_sweep_client is not None:
+                if self._stop_sweep_client.service_is_ready():
+                    await self._call(self._stop_sweep_client, Trigger.Request(), 'the sweep stop',
+                                     p.service_timeout_s)
+            reason = await self._waits.wait(future, self._waits.remaining(duration + p.service_timeout_s))
+        except BaseException:
+            client.remove_pending_request(future)
+            raise
+        if reason != 'done':
+            client.remove_pending_request(future)
+            self._waits.raise_for(reason, f'{what} did not answer within '
+                                          f'{duration + p.service_timeout_s:g} s')
+        return future.result()
+
+    async def _watch_sweep(self, k: int, duration: float, motion) -> bool:
+        """Ask the field_estimator how far the sweep is every sweep_check_s (live coverage and
+        largest std in the status) until ``motion`` (the sweep service's future, or None for an
+        operator) ends or ``duration`` passes; True as soon as the estimate is good enough
+        (past sweep_min_s, every key point passed, std <= the threshold) when
+        shaping.sweep.adaptive is on."""
+        p = self.params
+        t0 = time.monotonic()
+        while True:
+            elapsed = time.monotonic() - t0
+            if motion is not None and motion.done():
+                return False
+            if elapsed + p.sweep_check_s >= duration:   # no check left before the end
+                reason = await self._waits.wait(motion, self._waits.remaining(duration - elapsed))
+                if reason == 'cancelled':
+                    self._waits.raise_for(reason, '')
+                return False
+            reason = await self._waits.wait(motion, self._waits.remaining(p.sweep_check_s))
+            if reason == 'cancelled':
+                self._waits.raise_for(reason, '')
+            if motion is not None and motion.done():
+                return False
+            try:
+                coverage, max_std = await self._peek(k)
+            except IterationStopped as exc:
+                if self._waits.ending():   # a cancel or the iteration's deadline ends it here
+                    raise
+                self.get_logger().warning(f'no sweep progress from the field_estimator ({exc}); '
+                                          f'the sweep goes on', throttle_duration_sec=10.0)
+                continue
+            with self._lock:
+                self._coverage, self._max_std = coverage, max_std
+            self._publish_status()
+            if (self._sweep_policy.adaptive and time.monotonic() - t0 >= p.sweep_min_s
+                    and coverage >= 1.0 and max_std <= self._sweep_std_max):
+                self.get_logger().info(
+                    f'iteration {k}: the estimate is good enough after {time.monotonic() - t0:.1f} s '
+                    f'(coverage {100 * coverage:.0f} %, largest std {max_std:.3f} N <= '
+                    f'{self._sweep_std_max:.3f} N): ending the sweep')
+                return True
+
+    async def _peek(self, k: int) -> tuple[float, float]:
+        """(coverage [0..1], largest std [N] or NaN) of the sweep so far."""
+        U = self.command_in_force()
+        wait = max(2.0, self.params.sweep_check_s)   # short: the sweep goes on without it
+        answer = await self._waits.call(
+            self._estimate_client,
+            EstimateField.Request(iteration=k, fan_names=self._fan_names,
+                                  pwm=[float(u) for u in U], peek=True),
+            'field_estimator', wait, ready_timeout_s=wait)
+        coverage = math.nan
+        if len(answer.samples.t):
+            pos = np.column_stack([answer.samples.x, answer.samples.y])
+            coverage = coverage_share(pos, self._run.key_points, self._coverage_radius)
+        max_std = float(np.max(answer.estimate.std)) if answer.success and len(answer.estimate.std) else math.nan
+        return coverage, max_std
 
     async def _call(self, client, request, what: str, timeout_s: float, *, resend: bool = False):
         return await self._waits.call(client, request, what, timeout_s, resend=resend,

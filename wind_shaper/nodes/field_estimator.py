@@ -143,6 +143,8 @@ class FieldEstimatorNode(Node):
         return response
 
     def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
+        if request.peek:
+            return self._handle_peek(request, response)
         with self._lock:
             was_collecting = self._collecting
             self._collecting = False
@@ -193,6 +195,35 @@ class FieldEstimatorNode(Node):
         self.get_logger().info(message)
         response.success = True
         response.message = message
+        return response
+
+    def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
+        """How far the sweep is: the estimate from what is collected so far, collection going
+        on; nothing is published, journalled or closed. The pairs come back for the coverage
+        (also when the estimate is refused for gaps)."""
+        with self._lock:
+            force_t, force = self._force.arrays()
+            pose_t, pose_x, pose_y = self._pose.arrays()
+        sweep = None
+        try:
+            pwm = self._request_pwm(request)
+            finite = pose_t[np.isfinite(pose_t)]
+            t_start = float(finite.min()) if len(finite) else 0.0
+            t_compute = time.perf_counter()
+            sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
+            names_ = list(request.fan_names)
+            response.samples = sweep_to_msg(sweep, request.iteration, names_,
+                                            stamp=seconds_to_stamp(t_start))
+            est = self._estimator.estimate(sweep, self._key_points)
+            response.compute_s = time.perf_counter() - t_compute
+        except WindShaperError as exc:
+            response.success = False
+            response.message = f'not enough yet ({len(force_t)} force, {len(pose_t)} pose samples): {exc}'
+            return response
+        response.estimate = estimate_to_msg(est, request.iteration, names_, pwm, len(sweep),
+                                            stamp=seconds_to_stamp(t_start + sweep.times[-1]))
+        response.success = True
+        response.message = f'{len(sweep)} pairs so far, max std {float(np.max(est.std)):.3f} N'
         return response
 
     def _request_pwm(self, request: EstimateField.Request) -> np.ndarray:

@@ -15,6 +15,8 @@ Plays the rig so that fan_output, force_sensor and mocap_relay run unchanged aga
 * service ``/wind_shaper/tunnel/sweep`` (``wind_shaper_msgs/Sweep``): moves the plate along the
   simulator's sweep path in real time, sped up to cover the sweep disc in ``duration_s``, and
   returns when it is back at ``rest_position`` (outside the key-point disc);
+* service ``/wind_shaper/tunnel/stop_sweep`` (``std_srvs/Trigger``): ends the running sweep now
+  (the coordinator's estimate is good enough) and sends the plate back to rest;
 * service ``/wind_shaper/tunnel/place`` (``wind_shaper_msgs/Place``): moves the plate to a point
   and holds it there, as a motion stage does for the held-plate batch;
 * ``/diagnostics`` once per ``diagnostics_period_s``.
@@ -33,6 +35,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.task import Future
+from std_srvs.srv import Trigger
 from wind_shaper_msgs.srv import Place, Sweep
 
 from ..app import Setup, hidden_effects
@@ -181,6 +184,9 @@ class SimTunnel(Node):
         self._sweep_group = ReentrantCallbackGroup()
         self.create_service(Sweep, names.SWEEP, self._handle_sweep, callback_group=self._sweep_group)
         self.create_service(Place, names.PLACE, self._handle_place, callback_group=self._sweep_group)
+        self._motion_ended = None
+        self.create_service(Trigger, names.STOP_SWEEP, self._handle_stop_sweep,
+                            callback_group=self._sweep_group)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
         self._mocap_thread = threading.Thread(target=self._mocap_loop, name='sim-mocap', daemon=True)
         self._mocap_thread.start()
@@ -261,16 +267,29 @@ class SimTunnel(Node):
 
     # ------------------------------------------------------------------ services
     async def _motion_end(self, motion) -> None:
-        """Return when ``motion`` ends: awaited in a coroutine, so the executor's one thread
-        serves diagnostics while the plate moves."""
+        """Return when ``motion`` ends (or a stop_sweep request ends it): awaited in a
+        coroutine, so the executor's one thread serves diagnostics while the plate moves."""
         ended = Future()
+        self._motion_ended = ended
         timer = self.create_timer(max(motion.end - time.monotonic(), 1e-3),
                                   lambda: ended.done() or ended.set_result(True),
                                   callback_group=self._sweep_group)
         try:
             await ended
         finally:
+            self._motion_ended = None
             self.destroy_timer(timer)
+
+    def _handle_stop_sweep(self, request: Trigger.Request, response: Trigger.Response):
+        ended = self._motion_ended
+        if ended is None or not self.live.sweeping():
+            response.success, response.message = False, 'no sweep is running'
+            return response
+        self.live.stop_sweep()            # the plate goes straight back to rest
+        if not ended.done():
+            ended.set_result(True)
+        response.success, response.message = True, 'sweep ended early; the plate returns to rest'
+        return response
 
     async def _handle_place(self, request: Place.Request, response: Place.Response) -> Place.Response:
         try:
@@ -307,7 +326,8 @@ class SimTunnel(Node):
             return response
         self.sweeps_done += 1
         response.success = True
-        response.message = f'swept for {response.duration_s:.2f} s; the plate is back at rest'
+        early = ' (ended early on request)' if response.duration_s < request.duration_s - 0.05 else ''
+        response.message = f'swept for {response.duration_s:.2f} s{early}; the plate is back at rest'
         return response
 
     # ------------------------------------------------------------------ diagnostics

@@ -37,6 +37,7 @@ SET_MODEL = '/wind_shaper/set_model'             # wind_shaper_msgs/SetModel
 BEGIN_SWEEP = '/wind_shaper/field_estimator/begin_sweep'  # std_srvs/Trigger
 ESTIMATE_FIELD = '/wind_shaper/field_estimator/estimate'  # wind_shaper_msgs/EstimateField
 SWEEP = '/wind_shaper/tunnel/sweep'              # wind_shaper_msgs/Sweep (plate motion)
+STOP_SWEEP = '/wind_shaper/tunnel/stop_sweep'    # std_srvs/Trigger (end the running sweep now)
 PLACE = '/wind_shaper/tunnel/place'              # wind_shaper_msgs/Place (plate to a point, held)
 FORCE_BIAS = '/wind_shaper/force_sensor/bias'    # std_srvs/Trigger
 EMERGENCY_STOP = '/wind_shaper/fans/emergency_stop'  # std_srvs/Trigger (latches)

@@ -113,6 +113,10 @@ class Waits:
             raise self._stop('failed', f'{self._procedure} timed out while {self._describe()}')
         raise self._stop('failed', timeout_message)
 
+    def ending(self) -> bool:
+        """True once a cancel is requested or the deadline has passed."""
+        return self._cancel or time.monotonic() >= self.deadline
+
     def check(self) -> None:
         """Between steps: raise on a cancel request or a passed deadline."""
         if self._cancel:

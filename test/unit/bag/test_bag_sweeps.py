@@ -105,7 +105,8 @@ def test_a_sweep_whose_streams_cannot_be_paired_is_skipped_with_a_warning(tmp_pa
                 sec=t_ns // 10**9, nanosec=t_ns % 10**9), frame_id='')
         def status(t_ns, k, state):
             return T['wind_shaper_msgs/msg/IterationStatus'](
-                header=header(t_ns), iteration=k, state=state, progress=0.0, samples=0, message='',
+                header=header(t_ns), iteration=k, state=state, progress=0.0, samples=0,
+                coverage=float('nan'), max_std=float('nan'), message='',
                 target='', fan_names=[], pwm=np.zeros(0), rmse=0.0, run_folder='')
         zero = T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
         bag.write(names.STATUS, 0, status(0, 0, 'sweeping'))
