@@ -65,6 +65,9 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
     assert first['info']['warm_start']['check']['mismatch'] is False, first['info']['warm_start']
     assert 'warm start at the prior' in out
     assert errors[-1] < 0.95 * errors[0], f'the error did not fall: {errors}'
+    used = report['tunnel_time_s']   # plate and fan-settle time per iteration and in total
+    assert len(used['plate_s']) == 3 and all(4.0 < t < 30.0 for t in used['plate_s']), used
+    assert used['total_s'] == pytest.approx(used['plate_total_s'] + used['settle_total_s'])
     for png in ('field_maps.png', 'error.png', 'pwm.png'):
         assert (run / 'report' / png).stat().st_size > 1000
     print(f'RMSE per iteration through the graph: {errors}')

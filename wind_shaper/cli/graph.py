@@ -11,6 +11,7 @@ supervises until Ctrl-C. With ``--iterations N --target T`` it calls the coordin
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -278,6 +279,11 @@ def _iterate(args, sup, client, stop) -> int:
     except WindShaperError as exc:
         sup.say(f'wind-shaper up: report not written: {exc}')
         return 1
+    used = json.loads((out / 'run.json').read_text()).get('tunnel_time_s', {})
+    if used:
+        sup.say(f'wind-shaper up: tunnel time {used["plate_total_s"]:.0f} s of sweeping + '
+                f'{used["settle_total_s"]:.0f} s of commanding and settling over {len(responses)} '
+                f'iteration(s)')
     sup.say(f'wind-shaper up: run folder {run_folder}\nwind-shaper up: report {out}/ '
             f'(run.json, field_maps.png, error.png, pwm.png)')
     return 0
@@ -318,7 +324,12 @@ def write_run_report(run_folder: Path, out: Path, config_dir=None) -> Path:
         from ..core.errors import WindShaperError
         raise WindShaperError(f'{run_folder} has no completed iteration yet')
     setup = Setup.load(config_dir)
+    # tunnel time as the coordinator stamped it (re-sweeps included), per iteration and in total
+    plate = [float(r.info.get('plate_s', r.plate_s)) for r in records]
+    settle = [float(r.info.get('settle_s', 0.0)) for r in records]
     meta = {'run_folder': str(run_folder), 'target_spec': store.info.target,
             'created_at': store.info.created_at, 'config': store.info.config,
-            'source': 'wind-shaper up (node graph)'}
+            'source': 'wind-shaper up (node graph)',
+            'tunnel_time_s': {'plate_s': plate, 'settle_s': settle, 'plate_total_s': sum(plate),
+                              'settle_total_s': sum(settle), 'total_s': sum(plate) + sum(settle)}}
     return write_report(out, records, setup.geometry, meta, u_max=setup.shaping.u_max)

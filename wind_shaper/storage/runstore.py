@@ -355,7 +355,7 @@ class RunStore:
                 k=k, pwm=np.asarray(rec['pwm_before']), estimate=est,
                 target=np.asarray(fld['target_N']), error=rec['error_N2'],
                 next_pwm=np.asarray(rec['pwm_after']), step_size=rec['step_size'],
-                sweep=sweep, info=info))
+                sweep=sweep, info=info, settle_s=float(rec['info'].get('settle_s', 0.0))))
         return history
 
 
