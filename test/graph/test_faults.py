@@ -211,3 +211,25 @@ def test_sim_tunnel_killed_mid_sweep_fails_the_iteration_cleanly(rig, fault_row)
     assert code != 0 and stayed, out
     assert code2 == 0, out2 + rig.up.output()[-4000:]
     assert lost == 0
+
+
+@pytest.mark.timeout(60)
+def test_the_robot_can_query_the_field_and_a_bad_query_changes_nothing(rig, fault_row):
+    """On the graph that went through every fault above: the field of the last iteration at
+    any positions, as a robot's controller asks for it (`wind-shaper field`, the QueryField
+    service); a position outside the tunnel is refused and the estimator keeps answering."""
+    def field(*points):
+        return subprocess.run([sys.executable, '-m', 'wind_shaper.cli.main', 'field', '--wait', '10',
+                               *[f'--at={p}' for p in points]], cwd=rig.root, env=rig.env,
+                              capture_output=True, text=True, timeout=60)
+    ok = field('0,0', '0.1,-0.05')
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    values = [float(v) for v in re.findall(r'm: ([\d.]+) N \+- ([\d.]+) N', ok.stdout)[0]]
+    assert 0.5 < values[0] < 10.0 and 0 < values[1] < 0.5, ok.stdout
+    assert f'iteration {rig.state().last_completed}' in ok.stdout
+    bad = field('0.6,0')
+    assert bad.returncode == 1 and 'outside the measured disc' in bad.stderr, bad.stderr
+    again = field('0.05,0.05')
+    fault_row('the robot asks for the field outside the tunnel', 'refused with the reason; '
+              'the next query is answered', again.returncode == 0)
+    assert again.returncode == 0, again.stderr

@@ -11,7 +11,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from wind_shaper_msgs.msg import FieldEstimate  # noqa: E402
-from wind_shaper_msgs.srv import EstimateField  # noqa: E402
+from wind_shaper_msgs.srv import EstimateField, QueryField  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.estimation.align import align_sweep  # noqa: E402
@@ -69,6 +69,7 @@ class Harness:
         self.pose_pub = self.peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
         self.begin = self.peer.create_client(Trigger, names.BEGIN_SWEEP)
         self.estimate = self.peer.create_client(EstimateField, names.ESTIMATE_FIELD)
+        self.query = self.peer.create_client(QueryField, names.QUERY_FIELD)
         self.fields = []
         self.peer.create_subscription(FieldEstimate, names.FIELD, self.fields.append, qos.LATCHED)
         self.executor = SingleThreadedExecutor(context=context)
@@ -94,10 +95,13 @@ class Harness:
     def begin_sweep(self):
         return self.call(self.begin, Trigger.Request())
 
-    def estimate_field(self, iteration=0, fan_names=None, pwm=U):
+    def estimate_field(self, iteration=0, fan_names=None, pwm=U, peek=False):
         names_ = list(fan_names if fan_names is not None else self.node._fan_names)
         return self.call(self.estimate, EstimateField.Request(
-            iteration=iteration, fan_names=names_, pwm=[float(u) for u in pwm]))
+            iteration=iteration, fan_names=names_, pwm=[float(u) for u in pwm], peek=peek))
+
+    def query_field(self, x, y):
+        return self.call(self.query, QueryField.Request(x=[float(v) for v in x], y=[float(v) for v in y]))
 
     def publish(self, force_t, force, pose_t, pose_xy, expect_buffered=True):
         """Publish the streams in time order, in chunks the node keeps up with (KEEP_LAST
@@ -302,3 +306,57 @@ def test_buffers_keep_only_max_buffer_s(ros_context, sim, tmp_path):
         assert t.max() - t.min() <= 2.0 and len(t) <= 801
     finally:
         h.close()
+
+
+def test_a_peek_estimates_what_is_collected_so_far_and_collection_goes_on(harness, sim):
+    first = sweep_streams(sim, n_poses=400, seed=3)
+    assert harness.begin_sweep().success
+    half = 800   # the first half of the force samples, and the poses among them
+    poses = first[2] < first[0][half]
+    harness.publish(first[0][:half], first[1][:half], first[2][poses], first[3][poses])
+    early = harness.estimate_field(peek=True)
+    assert not early.success and 'missed' in early.message   # half the tour: gaps left
+    assert len(early.samples.t) == int(poses.sum())          # its pairs, for the coverage
+    harness.publish(first[0][half:], first[1][half:], first[2][~poses], first[3][~poses],
+                    expect_buffered=False)
+    assert wait_until(lambda: (len(harness.node._force), len(harness.node._pose)) == (1600, 400))
+    peek = harness.estimate_field(peek=True)
+    assert peek.success, peek.message
+    assert harness.node._collecting and harness.fields == []  # nothing published, still collecting
+    final = harness.estimate_field()
+    assert final.success and not harness.node._collecting
+    np.testing.assert_array_equal(peek.estimate.mean, final.estimate.mean)
+
+
+def test_the_field_can_be_queried_anywhere_in_the_measured_disc(harness, sim, setup, fault_row):
+    refused = harness.query_field([0.0], [0.0])
+    assert not refused.success and 'no field has been estimated' in refused.message
+    harness.begin_sweep()
+    harness.publish(*sweep_streams(sim, seed=4))
+    est = harness.estimate_field(iteration=7)
+    assert est.success
+    # between the key points too: the GP of that estimate, close to the simulator's truth
+    rng = np.random.default_rng(0)
+    r, a = 0.3 * np.sqrt(rng.uniform(0, 1, 40)), rng.uniform(0, 2 * np.pi, 40)
+    x, y = r * np.cos(a), r * np.sin(a)
+    got = harness.query_field(x, y)
+    assert got.success, got.message
+    assert got.iteration == 7 and stamp_seconds(got.stamp) == pytest.approx(
+        stamp_seconds(est.estimate.header.stamp), abs=1e-6)
+    truth = sim.true_field(U, np.column_stack([x, y]))
+    assert np.sqrt(np.mean((np.asarray(got.force) - truth) ** 2)) < 0.12
+    assert np.all(np.asarray(got.std) > 0) and np.all(np.asarray(got.std) < 0.2)
+    # at a key point it is the published estimate
+    kp = setup.geometry.key_points[[0, 150]]
+    at_kp = harness.query_field(kp[:, 0], kp[:, 1])
+    np.testing.assert_allclose(at_kp.force, np.asarray(est.estimate.mean)[[0, 150]], atol=1e-9)
+    # bad requests: refused with the reason, the node keeps answering
+    outside = harness.query_field([0.0, 0.5], [0.0, 0.0])
+    assert not outside.success and 'outside the measured disc' in outside.message
+    uneven = harness.query_field([0.0, 0.1], [0.0])
+    assert not uneven.success and 'one (x, y) pair per position' in uneven.message
+    nan = harness.query_field([float('nan')], [0.0])
+    assert not nan.success and 'not a finite number' in nan.message
+    assert harness.query_field([0.1], [0.1]).success
+    fault_row('a field query outside the tunnel, uneven or NaN, or before any estimate',
+              'refused with the reason; the estimator keeps answering', True)

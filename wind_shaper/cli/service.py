@@ -253,6 +253,41 @@ def _cmd_set_model(args) -> int:
         return 0
 
 
+QUERY_EXAMPLE = (f'ros2 service call {names.QUERY_FIELD} wind_shaper_msgs/srv/QueryField '
+                 f'"{{x: [0.0, 0.1], y: [0.0, 0.05]}}"')
+
+
+def _position(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in text.split(','))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a position: give X,Y in metres, e.g. 0.1,-0.05') from None
+    return x, y
+
+
+def _cmd_field(args) -> int:
+    from wind_shaper_msgs.srv import QueryField
+    points = args.at or [(0.0, 0.0)]
+    with _Session() as session:
+        client = session.node.create_client(QueryField, names.QUERY_FIELD)
+        if not session.wait_for_service(client, args.wait):
+            print(f'no field_estimator answered on {names.QUERY_FIELD} within {args.wait:g} s: '
+                  f'{START_HINT}', file=sys.stderr)
+            return 2
+        answer = session.call(client, QueryField.Request(x=[p[0] for p in points],
+                                                         y=[p[1] for p in points]), args.wait)
+        if answer is None:
+            print(f'the field_estimator did not answer within {args.wait:g} s', file=sys.stderr)
+            return 2
+        if not answer.success:
+            print(answer.message, file=sys.stderr)
+            return 1
+        print(f'estimated field of iteration {answer.iteration} (tunnel frame):')
+        for (x, y), f, sd in zip(points, answer.force, answer.std):
+            print(f'  ({x:+.3f}, {y:+.3f}) m: {f:.3f} N +- {sd:.3f} N')
+        return 0
+
+
 def _wait_arg(p) -> None:
     p.add_argument('--wait', type=float, default=5.0, metavar='S',
                    help='how long to wait for the coordinator to answer [s] (default 5)')
@@ -303,5 +338,15 @@ def register(subparsers) -> None:
     _wait_arg(p)
     p.set_defaults(func=_cmd_set_model)
 
+    p = subparsers.add_parser(
+        'field', help='the estimated force (and its std) at positions of the tunnel, from the '
+                      'latest field estimate (what a robot uses as feed-forward)',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f'On a full ROS 2 install: {QUERY_EXAMPLE}')
+    p.add_argument('--at', action='append', type=_position, metavar='X,Y',
+                   help='a position [m, tunnel frame]; repeat for more (default: the axis)')
+    _wait_arg(p)
+    p.set_defaults(func=_cmd_field)
 
-__all__ = ['register', 'format_result', 'format_status', 'ROS2_EQUIVALENT']
+
+__all__ = ['register', 'format_result', 'format_status', 'ROS2_EQUIVALENT', 'QUERY_EXAMPLE']

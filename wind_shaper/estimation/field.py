@@ -4,7 +4,7 @@ Positions are plate centres [m, tunnel frame]; forces are vertical plate forces 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, LinAlgError, solve_triangular
@@ -261,13 +261,39 @@ class LocalGaussianProcessField(GaussianProcessField):
 
 @dataclass(frozen=True)
 class FieldEstimate:
-    """The estimated field at the key points: mean and std (N,) [N], coverage (N,) [m]."""
+    """The estimated field at the key points: mean and std (N,) [N], coverage (N,) [m]; ``gp``,
+    when the estimator kept it, answers for any other position (``at``)."""
 
     key_points: np.ndarray
     mean: np.ndarray
     std: np.ndarray
     key_distance: np.ndarray
     n_used: int
+    gp: object = field(default=None, repr=False, compare=False)
+
+    def at(self, positions, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """The estimated force and its std [N] at ``positions`` (M, 2) [m, tunnel frame], each
+        within ``radius`` [m] of the tunnel axis (the disc the sweep measured; beyond it the GP
+        only returns its prior). SweepError says which position is wrong."""
+        if self.gp is None:
+            raise SweepError('this estimate kept no GP to query: estimate the sweep again')
+        P = np.asarray(positions, dtype=float)
+        if P.ndim != 2 or P.shape[1] != 2 or len(P) == 0:
+            raise SweepError(f'give positions as (x, y) pairs [m]; got an array of shape {P.shape}')
+        bad = ~np.all(np.isfinite(P), axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SweepError(f'position {i} is not a finite number: {P[i].tolist()}')
+        r = np.hypot(P[:, 0], P[:, 1])
+        out = r > radius + 1e-9
+        if out.any():
+            i = int(np.argmax(r))
+            raise SweepError(f'{int(out.sum())} of {len(P)} positions lie outside the measured disc '
+                             f'(radius {radius:.3f} m around the tunnel axis), farthest '
+                             f'{P[i].round(3).tolist()} at {r[i]:.3f} m: the sweeps measure nothing '
+                             f'there, so no force can be given; ask within {radius:.3f} m')
+        mean, std = self.gp.predict(P, return_std=True)
+        return np.asarray(mean, float), np.asarray(std, float)
 
 
 @dataclass(frozen=True)
@@ -336,4 +362,5 @@ class FieldEstimator:
         gp = self.make_gp(len(sub.forces), sub.positions, sub.forces)
         gp.fit(sub.positions, sub.forces)
         mean, std = gp.predict(key_points, return_std=True)
-        return FieldEstimate(np.asarray(key_points, float), mean, std, sub.key_distance, len(sub.forces))
+        return FieldEstimate(np.asarray(key_points, float), mean, std, sub.key_distance,
+                             len(sub.forces), gp)

@@ -8,7 +8,9 @@ PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose w
 force over +-half a pose period around its stamp (``wind_shaper.estimation.align``), runs the core
 ``FieldEstimator`` (GET_CLOSEST + GP, settings from shaping.yaml's ``estimator`` section) at the
 key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/field`` (latched)
-and returns it with the raw pairs (``SweepSamples``). An estimate that fails (no samples, streams
+and returns it with the raw pairs (``SweepSamples``); ``/wind_shaper/field/query``
+(wind_shaper_msgs/QueryField) then gives the force and its std at any positions within the
+measured disc, from that estimate's GP (a robot's feed-forward). An estimate that fails (no samples, streams
 out of step, poor coverage) answers ``success: false`` with the reason and changes nothing: the
 buffers are kept and collection goes on if it was on, so the plate can sweep on and the
 coordinator can ask again; when the streams could be paired, the refused sweep's pairs come back
@@ -32,7 +34,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from wind_shaper_msgs.msg import FieldEstimate
-from wind_shaper_msgs.srv import EstimateField
+from wind_shaper_msgs.srv import EstimateField, QueryField
 
 from ..app import Setup
 from ..estimation import SampleBuffer, align_sweep
@@ -71,6 +73,8 @@ class FieldEstimatorNode(Node):
         self._key_points = setup.geometry.key_points
         self._fan_names = list(setup.geometry.fans.names)
         self._estimator = setup.shaping.make_estimator()
+        self._query_radius = float(setup.geometry.sweep_radius)
+        self._latest = None   # (FieldEstimate with its GP, iteration, end-of-sweep stamp [s])
         self._lock = threading.Lock()  # collecting flag + the buffers' begin/end
         self._collecting = False
         self._force = SampleBuffer(1, p.max_buffer_s)
@@ -102,6 +106,7 @@ class FieldEstimatorNode(Node):
                             callback_group=services)
         self.create_service(EstimateField, names.ESTIMATE_FIELD, self._handle_estimate,
                             callback_group=services)
+        self.create_service(QueryField, names.QUERY_FIELD, self._handle_query, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'{len(self._key_points)} key points, estimator {self._estimator}; '
@@ -181,6 +186,7 @@ class FieldEstimatorNode(Node):
         response.samples = sweep_to_msg(sweep, request.iteration, names_,
                                         stamp=seconds_to_stamp(t_start))
         self._field_pub.publish(response.estimate)
+        self._latest = (est, int(request.iteration), t_start + float(sweep.times[-1]))
         if self._journal is not None:
             self._journal.close('estimated')
         duration = float(sweep.times[-1] - sweep.times[0]) if len(sweep) > 1 else 0.0
@@ -224,6 +230,29 @@ class FieldEstimatorNode(Node):
                                             stamp=seconds_to_stamp(t_start + sweep.times[-1]))
         response.success = True
         response.message = f'{len(sweep)} pairs so far, max std {float(np.max(est.std)):.3f} N'
+        return response
+
+    def _handle_query(self, request: QueryField.Request, response: QueryField.Response):
+        """The latest estimate's force and std at the requested positions; a bad request (no
+        estimate yet, lengths that differ, a position outside the measured disc) answers
+        success false with the reason and changes nothing."""
+        latest = self._latest
+        try:
+            if latest is None:
+                raise WindShaperError('no field has been estimated since this node started: run an '
+                                      'iteration (wind-shaper iterate) first')
+            if len(request.x) != len(request.y):
+                raise WindShaperError(f'{len(request.x)} x but {len(request.y)} y values: give one '
+                                      f'(x, y) pair per position')
+            est, k, stamp = latest
+            force, std = est.at(np.column_stack([request.x, request.y]), self._query_radius)
+        except WindShaperError as exc:
+            response.success, response.message = False, f'field query refused: {exc}'
+            return response
+        response.success = True
+        response.iteration, response.stamp = k, seconds_to_stamp(stamp)
+        response.force, response.std = force.tolist(), std.tolist()
+        response.message = f'{len(force)} position(s) from the estimate of iteration {k}'
         return response
 
     def _request_pwm(self, request: EstimateField.Request) -> np.ndarray:

@@ -36,6 +36,7 @@ HOLD_POINT = '/wind_shaper/hold_point'           # wind_shaper_msgs/HoldPoint (a
 SET_MODEL = '/wind_shaper/set_model'             # wind_shaper_msgs/SetModel
 BEGIN_SWEEP = '/wind_shaper/field_estimator/begin_sweep'  # std_srvs/Trigger
 ESTIMATE_FIELD = '/wind_shaper/field_estimator/estimate'  # wind_shaper_msgs/EstimateField
+QUERY_FIELD = '/wind_shaper/field/query'        # wind_shaper_msgs/QueryField (force at any positions)
 SWEEP = '/wind_shaper/tunnel/sweep'              # wind_shaper_msgs/Sweep (plate motion)
 STOP_SWEEP = '/wind_shaper/tunnel/stop_sweep'    # std_srvs/Trigger (end the running sweep now)
 PLACE = '/wind_shaper/tunnel/place'              # wind_shaper_msgs/Place (plate to a point, held)
