@@ -61,6 +61,9 @@ class FieldEstimatorParams:
                              "on disk as it arrives, reloaded after a crash ('' = off; relative: "
                              'to the working directory)')
     journal_keep: int = param(20, 'closed sweeps kept in the journal', low=1, high=100000)
+    journal_sync_s: float = param(1.0, 'fsync the journal at least this often while a sweep is '
+                                  'collected [s]: a power cut loses at most that much',
+                                  low=0.0, high=3600.0)
 
 
 class FieldEstimatorNode(Node):
@@ -83,7 +86,8 @@ class FieldEstimatorNode(Node):
         self._last = 'no estimate yet'
         self._last_ok = True
         self._estimates = 0
-        self._journal = SweepJournal(p.journal_dir, p.journal_keep) if p.journal_dir else None
+        self._journal = (SweepJournal(p.journal_dir, p.journal_keep, sync_period_s=p.journal_sync_s)
+                         if p.journal_dir else None)
         resumed = self._journal.reopen() if self._journal is not None else None
         if resumed is not None:
             # a crash (or kill) during collection: take the sweep back and go on collecting
@@ -108,6 +112,9 @@ class FieldEstimatorNode(Node):
                             callback_group=services)
         self.create_service(QueryField, names.QUERY_FIELD, self._handle_query, callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics)
+        if self._journal is not None and p.journal_sync_s > 0:
+            # samples that stop arriving are synced too, not only at the next append
+            self.create_timer(p.journal_sync_s, self._journal.sync)
         self.get_logger().info(
             f'{len(self._key_points)} key points, estimator {self._estimator}; '
             f'force {p.force_topic}, pose {p.pose_topic}; journal '

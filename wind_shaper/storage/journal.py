@@ -10,8 +10,9 @@ the samples. ``SweepJournal`` keeps one folder per sweep under its root::
         outcome     'estimated' or 'abandoned' (why the sweep was closed), once closed
 
 Each sample is one ``os.write`` on a file opened for appending, so it is in the kernel's page
-cache as soon as it arrived: killing the process (SIGKILL included) loses none. ``close`` fsyncs
-(a power cut before that may still lose the tail). A process that starts again calls
+cache as soon as it arrived: killing the process (SIGKILL included) loses none. The files are
+fsynced at least every ``sync_period_s`` while samples arrive (and by ``sync()``, which the node
+calls on a timer, and at ``close``), so a power cut loses at most that last batch. A process that starts again calls
 ``reopen()`` to get the unfinished sweep back and goes on appending to it. A torn last row (a
 write cut short) is ignored on reading. The newest ``keep`` closed sweeps are kept.
 """
@@ -45,14 +46,22 @@ def read_rows(path: Path, columns: int) -> np.ndarray:
 class SweepJournal:
     """On-disk twin of a sweep's sample buffers; see the module docstring.
 
-    root: folder of the sweep folders (created if missing); keep: closed sweeps kept (>= 1).
-    Appends come from stream callbacks, begin/close from services: a lock orders them."""
+    root: folder of the sweep folders (created if missing); keep: closed sweeps kept (>= 1);
+    sync_period_s: fsync the open sweep's files at least this often while samples arrive [s]
+    (0: after every sample). Appends come from stream callbacks, begin/close from services: a
+    lock orders them."""
 
-    def __init__(self, root, keep: int = 20):
+    def __init__(self, root, keep: int = 20, sync_period_s: float = 1.0):
         self.root = Path(root)
         if keep < 1:
             raise ConfigError(f'the journal must keep at least 1 closed sweep; got keep={keep}')
+        if not (isinstance(sync_period_s, (int, float)) and 0 <= sync_period_s <= 3600):
+            raise ConfigError(f'the journal\'s sync period must be 0..3600 s; got {sync_period_s!r}')
         self.keep = int(keep)
+        self.sync_period_s = float(sync_period_s)
+        self._last_sync = time.monotonic()
+        self._dirty = False
+        self.syncs = 0   # fsyncs of an open sweep's files (this process)
         try:
             self.root.mkdir(parents=True, exist_ok=True)
             probe = self.root / '.write_test'
@@ -106,12 +115,33 @@ class SweepJournal:
             if self._fds is not None:
                 os.write(self._fds[0], _FORCE_ROW.pack(t, fz))
                 self.rows_written[0] += 1
+                self._wrote_locked()
 
     def append_pose(self, t: float, x: float, y: float) -> None:
         with self._lock:
             if self._fds is not None:
                 os.write(self._fds[1], _POSE_ROW.pack(t, x, y))
                 self.rows_written[1] += 1
+                self._wrote_locked()
+
+    def sync(self) -> None:
+        """fsync what was appended since the last sync (a timer calls it: samples that stop
+        arriving would otherwise wait for the next one)."""
+        with self._lock:
+            self._sync_locked()
+
+    def _wrote_locked(self) -> None:
+        self._dirty = True
+        if time.monotonic() - self._last_sync >= self.sync_period_s:
+            self._sync_locked()
+
+    def _sync_locked(self) -> None:
+        if self._fds is not None and self._dirty:
+            for fd in self._fds:
+                os.fsync(fd)
+            self.syncs += 1
+        self._dirty = False
+        self._last_sync = time.monotonic()
 
     def close(self, outcome: str) -> Path | None:
         """Close the open sweep with ``outcome`` ('estimated' | 'abandoned'); returns its folder."""
