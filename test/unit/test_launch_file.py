@@ -67,3 +67,23 @@ def test_setup_installs_the_launch_file_and_the_configs():
     text = (ROOT / 'setup.py').read_text()
     assert "glob('launch/*.launch.py')" in text and "glob('config/*')" in text
     assert LAUNCH.name.endswith('.launch.py')
+
+
+def test_up_and_the_launch_file_give_every_node_the_same_parameters(tmp_path):
+    """What `wind-shaper up` passes each node (plan_graph without overrides) is what the launch
+    file passes: the node's own <node>.yaml from config_dir, and config_dir itself to exactly
+    the nodes the launch file gives it to; with sim, sim_tunnel first and the rig drivers after."""
+    from wind_shaper.supervisor import plan_graph
+    c = constants(ast.parse(LAUNCH.read_text()))
+    launched = [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]
+    config_dir = ROOT / 'config'
+    specs = plan_graph([names.SIM_TUNNEL, *names.GRAPH_NODES], config_dir)
+    assert sorted(s.name for s in specs) == sorted(launched)
+    for spec in specs:
+        argv = list(spec.argv)
+        assert argv[argv.index('--params-file') + 1] == str(config_dir.resolve() / f'{spec.name}.yaml')
+        given = [argv[i + 1].split(':=')[0] for i, a in enumerate(argv) if a == '-p']
+        expected = ['config_dir'] if spec.name in c['USES_CONFIG_DIR'] else []
+        assert given == expected, f'{spec.name}: up passes {given}, the launch file {expected}'
+    order = [s.name for s in specs]
+    assert order.index(names.SIM_TUNNEL) < min(order.index(n) for n in c['RIG_DRIVERS'])
