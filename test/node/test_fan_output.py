@@ -226,7 +226,8 @@ def test_cut_link_resends_safe_when_the_link_returns(harness, autopilot, fault_r
 
 @pytest.mark.fault
 def test_an_autopilot_that_forgot_the_outputs_gets_them_again(harness, autopilot, fault_row):
-    start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
+    # the read-back check alone (no periodic refresh): the mismatch makes fan_output resend
+    start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0, refresh_s=0.0)
     expected = {ch: round(1000 + 1000 * u) for ch, u in zip(CHANNELS, (0.2, 0.5, 0.9))}
     autopilot.reboot()                     # outputs back to safe, heartbeats go on
     assert outputs_are(autopilot, SAFE)()
@@ -342,3 +343,24 @@ def test_config_file_lists_every_parameter(ros_context):
         assert node.params == FanOutputParams(autostart=False)
     finally:
         node.destroy_node()
+
+
+
+@pytest.mark.fault
+def test_a_restarted_autopilot_gets_the_held_command_back_by_the_refresh(harness, autopilot, fault_row):
+    # an autopilot that lost its outputs and reports nothing: the periodic refresh alone
+    start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0, refresh_s=0.5)
+    expected = {ch: round(1000 + 1000 * u) for ch, u in zip(CHANNELS, (0.2, 0.5, 0.9))}
+    autopilot.reboot()
+    assert outputs_are(autopilot, SAFE)()
+    t0 = time.monotonic()
+    for _ in range(30):
+        harness.command((0.2, 0.5, 0.9))   # the coordinator republishes the same command
+        if outputs_are(autopilot, expected)():
+            break
+        time.sleep(0.1)
+    assert outputs_are(autopilot, expected)(), autopilot.outputs()
+    assert time.monotonic() - t0 < 2.0
+    assert int(harness.fresh_diag()['resyncs']) == 0   # the refresh did it, not the read-back check
+    fault_row('autopilot restarts between two heartbeat checks', 'the held command is sent again '
+              'within refresh_s', True)

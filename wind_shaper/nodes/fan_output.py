@@ -5,7 +5,9 @@ every configured fan exactly once with a finite value; anything else (unknown fa
 mismatch, missing fan, NaN/inf) is refused with a warning and counted in /diagnostics, and
 changes nothing. Values outside [u_min, u_max] are clipped into it and the clip is reported.
 A timer at ``send_rate_hz`` moves the outputs toward the command at no more than
-``slew_rate_per_s`` and sends them (``wind_shaper.io.MavlinkFanLink``) when the pulses change.
+``slew_rate_per_s`` and sends them (``wind_shaper.io.MavlinkFanLink``) when the pulses change,
+and at least every ``refresh_s`` while a command is held (an autopilot that restarted between
+two heartbeat checks gets the commands back).
 
 Publishes ``/wind_shaper/fans/applied`` (FanCommand, latched) from the autopilot's
 SERVO_OUTPUT_RAW read-back: the fractions really applied. Services
@@ -81,6 +83,10 @@ class FanOutputParams:
                                      low=0.05, high=3600.0)
     send_rate_hz: float = param(20.0, 'rate of the slew-limited send timer [Hz]', low=1.0,
                                 high=200.0)
+    refresh_s: float = param(1.0, 'while a command is held, send it again at least this often '
+                             '[s], changed or not: an autopilot that restarted (its outputs back '
+                             'at safe) gets it back; 0 = only when the pulses change', low=0.0,
+                             high=3600.0)
     signing_key_hex: str = param('', "MAVLink 2 signing key, 64 hex digits ('' = signing off); "
                                  'the autopilot must hold the same key')
     autostart: bool = param(True, 'configure and activate at start (else wait for lifecycle '
@@ -156,6 +162,7 @@ class FanOutputNode(LifecycleNode):
         self._limiter = SlewLimiter(p.slew_rate_per_s, self._rest)
         self._last_sent: dict[int, int] | None = None
         self._last_value: np.ndarray | None = None     # fractions of _last_sent, fan order
+        self._last_send_at = 0.0                       # time.monotonic() of the last send
         self._off_since: float | None = None           # read-back off _last_value since [s]
         self._counts = dict(commands=0, rejected=0, clipped=0, watchdog_trips=0, link_losses=0,
                             estops=0, exceptions=0, resyncs=0)
@@ -308,9 +315,11 @@ class FanOutputNode(LifecycleNode):
                 return
             value = self._limiter.step(now, self._target)
             pulses = self._map.command(value).pulses
-            if pulses != self._last_sent:
+            refresh = self.params.refresh_s
+            if pulses != self._last_sent or (refresh > 0 and now - self._last_send_at >= refresh):
                 link.send(value)
                 self._last_sent, self._last_value = pulses, np.array(value, dtype=float)
+                self._last_send_at = now
 
     @_guarded
     def _on_link_lost(self) -> None:
