@@ -20,7 +20,9 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 HIDDEN = 'tilted_fan:fan=LM2,shift=0.04/0'
 #: The supervisor's line for a restarted coordinator, with its new pid.
 RESTARTED = re.compile(r'restarting coordinator \(\d+ of \d+\): pid (\d+)')
-SWEEPS = 10
+#: 12 designed sweeps: the bench's regime where the tilted fan is named in 9 of 10 runs (with 10
+#: the check across sweeps had only 4 training sweeps that showed it, and refused it once in CI)
+SWEEPS = 12
 SWEEP_S = 8.0
 
 
@@ -64,7 +66,7 @@ def graph(tmp_path_factory, new_domain_id):
 
 @pytest.fixture(scope='module')
 def experiment(graph):
-    """lhs:10 collected with the coordinator SIGKILLed once the second sweep is stored; the
+    """lhs:12 collected with the coordinator SIGKILLed once the second sweep is stored; the
     collect command waits for the restarted coordinator and resumes."""
     root, env, up, pids = graph
     call = subprocess.Popen(
