@@ -360,15 +360,7 @@ class CoordinatorNode(Node):
         """The sweep service's motion, watched; stopped early (stop_sweep_service) when the
         estimate is good enough. Returns the sweep service's response."""
         p, client = self.params, self._sweep_client
-        if not client.service_is_ready():
-            give_up = time.monotonic() + p.service_timeout_s
-            while not client.service_is_ready() and time.monotonic() < give_up:
-                if await self._waits.wait(None, 0.1) == 'cancelled':
-                    self._waits.raise_for('cancelled', '')
-            if not client.service_is_ready():
-                raise IterationStopped(IterationStatus.STATE_FAILED,
-                                       f'no {client.srv_name} service within {p.service_timeout_s:g} s: '
-                                       f'is {what} running?')
+        await self._waits.wait_ready(client, what, p.service_timeout_s)
         future = client.call_async(Sweep.Request(duration_s=duration, seed=0))
         try:
             enough = await self._watch_sweep(k, duration, future)

@@ -124,6 +124,20 @@ class Waits:
         if time.monotonic() >= self.deadline:
             raise self._stop('failed', f'{self._procedure} timed out after {self._describe()}')
 
+    async def wait_ready(self, client, what: str, ready_timeout_s: float) -> None:
+        """Return once ``client``'s service is there; raise if it is not within
+        ``ready_timeout_s`` [s], on a cancel, or at the deadline."""
+        if client.service_is_ready():
+            return
+        give_up = min(time.monotonic() + ready_timeout_s, self.deadline)
+        while not client.service_is_ready() and time.monotonic() < give_up:
+            if await self.wait(None, 0.1) == 'cancelled':
+                raise self._stop('cancelled', f'cancelled while waiting for {what}')
+        if not client.service_is_ready():
+            self.check()
+            raise self._stop('failed', f'no {client.srv_name} service within '
+                                       f'{ready_timeout_s:g} s: is {what} running?')
+
     async def call(self, client, request, what: str, timeout_s: float, *, ready_timeout_s: float,
                    resend: bool = False):
         """Call a service and return its response; a service that is not there within
@@ -131,15 +145,7 @@ class Waits:
         (idempotent calls only): while no answer came the request goes out again every
         max(RESEND_MIN_S, timeout_s / 4), for a server restarted in the meantime never saw the
         earlier one (DDS drops a request sent before the server was matched)."""
-        if not client.service_is_ready():
-            give_up = min(time.monotonic() + ready_timeout_s, self.deadline)
-            while not client.service_is_ready() and time.monotonic() < give_up:
-                if await self.wait(None, 0.1) == 'cancelled':
-                    raise self._stop('cancelled', f'cancelled while waiting for {what}')
-            if not client.service_is_ready():
-                self.check()
-                raise self._stop('failed', f'no {client.srv_name} service within '
-                                           f'{ready_timeout_s:g} s: is {what} running?')
+        await self.wait_ready(client, what, ready_timeout_s)
         every = max(RESEND_MIN_S, timeout_s / 4) if resend else timeout_s
         give_up = time.monotonic() + self.remaining(timeout_s)
         future = client.call_async(request)
