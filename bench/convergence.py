@@ -75,6 +75,7 @@ METHODS = {
     'adaptive': {'rule': {'method': 'adaptive'}, 'u0': 0.5, 'short': False},
     'warm': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': False},
     'warm+short': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True},
+    'warm+region': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True, 'region': True},
 }
 NOMINAL_TARGETS = ['uniform', 'gaussian@LM1', 'parabolic', 'expr:2.5 + 0.5*cos(3*theta)*r/0.3']
 MIXES = {
@@ -190,10 +191,10 @@ class _TimedTunnel:
     def __init__(self, tunnel):
         self._t, self.geometry, self.cpu = tunnel, tunnel.geometry, 0.0
 
-    def _timed(self, fn, *args):
+    def _timed(self, fn, *args, **kw):
         c = time.thread_time()
         try:
-            return fn(*args)
+            return fn(*args, **kw)
         finally:
             self.cpu += time.thread_time() - c
 
@@ -203,8 +204,8 @@ class _TimedTunnel:
     def sweep(self, n_samples=1000):
         return self._timed(self._t.sweep, n_samples)
 
-    def sweep_chunks(self, max_samples=1000, chunk_samples=50):
-        gen = self._timed(self._t.sweep_chunks, max_samples, chunk_samples)
+    def sweep_chunks(self, max_samples=1000, chunk_samples=50, **region):
+        gen = self._timed(self._t.sweep_chunks, max_samples, chunk_samples, **region)
         while True:
             try:
                 yield self._timed(next, gen)
@@ -231,6 +232,8 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
     rule = setup.shaping.make_rule(**cfg['rule'])
     short = cfg['short'] and source == 'plate'   # the static grid records for a fixed time
     length = setup.shaping.make_sweep_length() if short else SweepLength(adaptive=False)
+    if short and 'region' in cfg:
+        length = replace(length, region={**dict(length.region or {}), 'enabled': cfg['region']})
     loop = ShapingLoop(tunnel, plant.prior, target_values, rule, setup.shaping.make_estimator(),
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error)

@@ -13,12 +13,15 @@ time); forces and standard deviations [N].
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Mapping
 
 import numpy as np
 
+from ..core.config import take_section
 from ..core.errors import ConfigError, SweepError
 from ..estimation import Coverage
+from .region import SweepRegion
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,8 @@ class SweepLength:
     min_samples: int = 300
     chunk_samples: int = 50
     std_factor: float = 1.2
+    #: where to sweep after the first iteration: a ``control.region.SweepRegion`` section
+    region: Mapping | None = None
 
     def __post_init__(self):
         if not (isinstance(self.min_samples, int) and self.min_samples >= 10):
@@ -58,6 +63,18 @@ class SweepLength:
                               f'{self.chunk_samples!r}')
         if not self.std_factor > 0:
             raise ConfigError(f'shaping.sweep.std_factor must be > 0; got {self.std_factor!r}')
+        if self.region is not None and not isinstance(self.region, (Mapping, SweepRegion)):
+            raise ConfigError(f'shaping.sweep.region must be a section (enabled, change_error, '
+                              f'min_share, max_share, reach); got {self.region!r}')
+        self.region_policy  # validates the region section
+
+    @property
+    def region_policy(self) -> SweepRegion:
+        """The region section as a ``SweepRegion`` (off unless it says ``enabled: true``; only
+        an adaptive sweep can keep to a region)."""
+        if isinstance(self.region, SweepRegion):
+            return self.region
+        return take_section(SweepRegion, self.region, 'shaping.sweep.region')
 
     def std_max(self, rule) -> float:
         """The threshold [N] for ``rule`` (its stopping rule's floor; 0.05 N without one)."""
@@ -68,32 +85,57 @@ class SweepLength:
 
 class SweepMonitor:
     """Follows one sweep as its samples arrive: coverage of the key points, and (past the
-    minimum, at full coverage) the estimate's largest std. ``add(positions)`` then ``check()``."""
+    minimum, at full coverage) the estimate's largest std. ``add(positions)`` then ``check()``.
 
-    def __init__(self, policy: SweepLength, estimator, key_points, std_max: float):
-        self.policy, self.estimator = policy, estimator
+    plan: a ``control.region.RegionPlan`` when only its region is swept: coverage counts its
+    needed key points, the minimum shrinks with its share, and the estimate is fused with what
+    it carries over."""
+
+    def __init__(self, policy: SweepLength, estimator, key_points, std_max: float, plan=None):
+        self.policy, self.estimator, self.plan = policy, estimator, plan
         self.key_points = np.asarray(key_points, dtype=float)
         self.std_max = float(std_max)
-        self.coverage = Coverage(self.key_points, estimator.max_gap)
+        watched = self.key_points if plan is None else self.key_points[plan.needed]
+        self.coverage = Coverage(watched, estimator.max_gap)
+        self.min_samples = (policy.min_samples if plan is None
+                            else max(policy.chunk_samples, int(np.ceil(policy.min_samples * plan.share))))
         self.n = 0
         self.estimate = None
+        self.consistency = float('nan')  # a region sweep's check of its carried values
 
     def add(self, positions) -> None:
         positions = np.asarray(positions, dtype=float).reshape(-1, 2)
         self.coverage.add(positions)
         self.n += len(positions)
 
+    def estimate_now(self, sweep):
+        """The field from ``sweep`` (fused with the plan's carried values); SweepError as the
+        estimator raises it."""
+        if self.plan is None:
+            return self.estimator.estimate(sweep, self.key_points)
+        estimate, self.consistency = fused_estimate(self.estimator, sweep, self.key_points, self.plan)
+        return estimate
+
     def check(self, sweep) -> SweepProgress:
         """Progress after the samples of ``sweep`` (everything so far); estimates the field when
         the minimum is reached and every key point is passed."""
-        if self.n < self.policy.min_samples or self.coverage.share < 1.0:
+        if self.n < self.min_samples or self.coverage.share < 1.0:
             return SweepProgress(self.n, self.coverage.share, float('nan'), False)
         try:
-            self.estimate = self.estimator.estimate(sweep, self.key_points)
+            self.estimate = self.estimate_now(sweep)
         except SweepError:
             return SweepProgress(self.n, self.coverage.share, float('nan'), False)
         worst = float(np.max(self.estimate.std))
         return SweepProgress(self.n, self.coverage.share, worst, worst <= self.std_max)
 
 
-__all__ = ['SweepLength', 'SweepMonitor', 'SweepProgress']
+def fused_estimate(estimator, sweep, key_points, plan):
+    """A region sweep's field estimate: the GP on ``sweep`` (only the plan's needed key points
+    must be passed) fused at every key point with what the plan carries over; returns it and
+    the plan's ``consistency`` with the fresh estimate."""
+    fresh = estimator.estimate(sweep, key_points, required=plan.needed)
+    mean, std = plan.fuse(fresh.mean, fresh.std)
+    return replace(fresh, mean=mean, std=std), plan.consistency(fresh.mean, fresh.std)
+
+
+__all__ = ['SweepLength', 'SweepMonitor', 'SweepProgress', 'fused_estimate']

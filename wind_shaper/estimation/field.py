@@ -346,19 +346,26 @@ class FieldEstimator:
             return GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std'])
         return GaussianProcessField(self.length_scale, self.noise_std, self.signal_std)
 
-    def estimate(self, sweep: Sweep, key_points: np.ndarray) -> FieldEstimate:
+    def estimate(self, sweep: Sweep, key_points: np.ndarray, required=None) -> FieldEstimate:
+        """The field at ``key_points`` (N, 2) [m] from ``sweep``; ``required`` (N,) bool: only
+        these key points must have been passed (a region sweep, ``control.region``); the others
+        get the GP's answer however far the samples are (a large std there)."""
         clean = sweep.finite()
         if len(clean) < self.min_samples:
             raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
                              f'{self.min_samples} are needed: sweep longer or check the streams')
         sub = closest_samples(clean, key_points)
         far = sub.key_distance > self.max_gap
+        if required is not None:
+            far &= np.asarray(required, dtype=bool)
         if np.any(far):
-            worst = int(np.argmax(sub.key_distance))
+            worst = int(np.argmax(np.where(far, sub.key_distance, -1.0)))
+            area = 'the whole area' if required is None else 'the region asked for'
             raise SweepError(
-                f'the sweep missed {int(far.sum())} of {len(key_points)} key points (nearest sample '
-                f'farther than {self.max_gap} m; worst {sub.key_distance[worst]:.3f} m at '
-                f'{np.round(key_points[worst], 3).tolist()}): sweep the plate over the whole area')
+                f'the sweep missed {int(far.sum())} of {int(np.sum(required)) if required is not None else len(key_points)} '
+                f'key points (nearest sample farther than {self.max_gap} m; worst '
+                f'{sub.key_distance[worst]:.3f} m at {np.round(key_points[worst], 3).tolist()}): '
+                f'sweep the plate over {area}')
         gp = self.make_gp(len(sub.forces), sub.positions, sub.forces)
         gp.fit(sub.positions, sub.forces)
         mean, std = gp.predict(key_points, return_std=True)

@@ -1,7 +1,10 @@
 """Plate paths for sweeps: smooth random trajectories over the disc the plate may visit.
 
-A path is a callable ``path(n, dt, radius, rng) -> (n, 2)`` positions [m, tunnel frame] of the
-plate centre, sampled every ``dt`` [s], all within ``radius`` [m] of the axis.
+A path is a callable ``path(n, dt, radius, rng, region=None) -> (n, 2)`` positions [m, tunnel
+frame] of the plate centre, sampled every ``dt`` [s], all within ``radius`` [m] of the axis;
+``region``, when given, is the part of the disc to sweep: anything with ``centres`` (K, 2) [m],
+``reach`` [m] and ``contains(positions) -> bool`` (``control.region.RegionPlan``), the positions
+within ``reach`` of a centre. A tour then sweeps each cluster of centres in turn.
 """
 from __future__ import annotations
 
@@ -20,6 +23,37 @@ def _resample(poly: np.ndarray, step: float, n: int) -> np.ndarray:
     s = np.concatenate([[0.0], np.cumsum(seg)])
     target = np.minimum(np.arange(n) * step, s[-1])
     return np.column_stack([np.interp(target, s, poly[:, 0]), np.interp(target, s, poly[:, 1])])
+
+
+def _region_share(inside, radius: float) -> float:
+    """The share of the disc of ``radius`` [m] that ``inside`` covers (a 41 x 41 grid)."""
+    g = np.linspace(-radius, radius, 41)
+    X, Y = np.meshgrid(g, g)
+    P = np.column_stack([X.ravel(), Y.ravel()])
+    P = P[np.hypot(P[:, 0], P[:, 1]) <= radius]
+    return float(np.mean(inside(P)))
+
+
+def _keep(poly: np.ndarray, inside, step: float) -> np.ndarray:
+    """The parts of polyline ``poly`` inside the region, resampled every ``step`` [m]; joined in
+    order, so the plate moves straight from one part to the next."""
+    seg = np.hypot(*np.diff(poly, axis=0).T)
+    fine = _resample(poly, step, int(np.sum(seg) / step) + 2)
+    kept = fine[inside(fine)]
+    return kept if len(kept) >= 2 else poly
+
+
+def _clusters(centres: np.ndarray, link: float) -> list[np.ndarray]:
+    """Centres (K, 2) [m] grouped so that centres closer than ``link`` [m] share a group
+    (single linkage), each group as an index array."""
+    K = len(centres)
+    label = np.arange(K)
+    d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    for i in range(K):
+        for j in range(i + 1, K):
+            if d[i, j] < link and label[i] != label[j]:
+                label[label == label[j]] = label[i]
+    return [np.flatnonzero(label == v) for v in np.unique(label)]
 
 
 def _inside(p: np.ndarray, radius: float) -> np.ndarray:
@@ -64,18 +98,47 @@ class TourPath:
         c, s = np.cos(angle), np.sin(angle)
         return poly @ np.array([[c, s], [-s, c]])
 
-    def __call__(self, n: int, dt: float, radius: float, rng: np.random.Generator) -> np.ndarray:
+    def _region_tour(self, radius: float, spacing: float, region, rng) -> np.ndarray:
+        """One pass over ``region``: a tour of the circle around each cluster of its centres,
+        kept to the region, the clusters in nearest-next order from a random first."""
+        centres = np.asarray(region.centres, dtype=float).reshape(-1, 2)
+
+        def inside(P):
+            return region.contains(P) & (np.hypot(P[:, 0], P[:, 1]) <= radius)
+
+        groups = _clusters(centres, 2 * region.reach)
+        order, left = [], list(range(len(groups)))
+        at = centres[groups[int(rng.integers(len(groups)))]].mean(axis=0)
+        while left:
+            nxt = min(left, key=lambda g: np.min(np.linalg.norm(centres[groups[g]] - at, axis=1)))
+            left.remove(nxt)
+            order.append(nxt)
+            at = centres[groups[nxt]].mean(axis=0)
+        parts = []
+        for g in order:
+            pts = centres[groups[g]]
+            mid = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+            local = min(float(np.max(np.linalg.norm(pts - mid, axis=1))) + region.reach, radius)
+            parts.append(_keep(self._tour(local, min(spacing, local), rng) + mid, inside, 0.1 * spacing))
+        return np.vstack(parts)
+
+    def __call__(self, n: int, dt: float, radius: float, rng: np.random.Generator,
+                 region=None) -> np.ndarray:
         step = self.speed * dt
         length = step * max(n - 1, 1)
         area = np.pi * radius ** 2
+        if region is not None:  # lanes as dense over the region as over the disc
+            area *= max(_region_share(region.contains, radius), 0.02)
         # one tour is about area / spacing long (plus turns): widen the lanes of a path too short
         # for one full tour at lane_spacing, so it still crosses the whole disc
         spacing = min(max(self.lane_spacing, 1.1 * area / max(length, 1e-9)), radius)
         tours, total = [], 0.0
         while total < length + step:
-            tour = self._tour(radius, spacing, rng)
+            tour = (self._tour(radius, spacing, rng) if region is None
+                    else self._region_tour(radius, spacing, region, rng))
             tours.append(tour)
-            total += float(np.sum(np.hypot(*np.diff(tour, axis=0).T))) + 2 * radius
+            total += float(np.sum(np.hypot(*np.diff(tour, axis=0).T))) + (
+                2 * radius if region is None else region.reach)
         poly = _resample(np.vstack(tours), 0.1 * spacing, int((total + step) / (0.1 * spacing)) + 2)
         poly = gaussian_filter1d(poly, sigma=3.0, axis=0, mode='nearest')
         return _inside(_resample(poly, step, n), radius)
@@ -85,7 +148,8 @@ class TourPath:
 class RandomWalkPath:
     """A momentum random walk: the plate moves at constant ``speed`` [m/s] while its heading
     diffuses with rate ``turn_sd`` [rad/sqrt(s)], and it reflects off the disc boundary like a
-    billiard ball. Smooth and random but covers the disc less evenly than ``TourPath``."""
+    billiard ball. Smooth and random but covers the disc less evenly than ``TourPath``. It knows
+    no region: given one, it still wanders over the whole disc."""
 
     speed: float = 0.8
     turn_sd: float = 3.0
@@ -94,7 +158,8 @@ class RandomWalkPath:
         if not (self.speed > 0 and self.turn_sd >= 0):
             raise ConfigError(f'random walk path needs speed > 0 and turn_sd >= 0; got {self}')
 
-    def __call__(self, n: int, dt: float, radius: float, rng: np.random.Generator) -> np.ndarray:
+    def __call__(self, n: int, dt: float, radius: float, rng: np.random.Generator,
+                 region=None) -> np.ndarray:
         r0 = radius * np.sqrt(rng.uniform())
         a0 = rng.uniform(0, 2 * np.pi)
         p = np.array([r0 * np.cos(a0), r0 * np.sin(a0)])

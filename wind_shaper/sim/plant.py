@@ -120,28 +120,31 @@ class SimulatedTunnel:
         """The commands in force (n_fans,) [fraction]."""
         return self._pwm.copy()
 
-    def sweep(self, n_samples: int = 1000, *, rng: np.random.Generator | None = None) -> Sweep:
+    def sweep(self, n_samples: int = 1000, *, rng: np.random.Generator | None = None,
+              region=None) -> Sweep:
         """Move the plate along a smooth random path within ``geometry.sweep_radius`` at
         ``sample_rate_hz`` and record noisy force [N] and mocap position [m] (1000 samples = 20 s
-        at 50 Hz, like the rig)."""
+        at 50 Hz, like the rig); ``region`` (a ``control.region.RegionPlan``, see ``sim.paths``):
+        keep the path to that region."""
         if int(n_samples) < 1:
             raise CommandError(f'a sweep needs n_samples >= 1; got {n_samples}')
         n = int(n_samples)
         rng = self._rng(rng)
         dt = 1.0 / self.sample_rate_hz
         state = self.state(self._pwm)
-        true_pos = self.path(n, dt, self.geometry.sweep_radius, rng)
+        true_pos = (self.path(n, dt, self.geometry.sweep_radius, rng) if region is None
+                    else self.path(n, dt, self.geometry.sweep_radius, rng, region=region))
         forces = self.noise.forces(self._plate(state, true_pos), dt, rng)
         return Sweep(self.noise.positions(true_pos, rng), forces, np.arange(n) * dt, self._pwm.copy())
 
     def sweep_chunks(self, max_samples: int = 1000, chunk_samples: int = 50, *,
-                     rng: np.random.Generator | None = None):
+                     rng: np.random.Generator | None = None, region=None):
         """One sweep of up to ``max_samples`` delivered ``chunk_samples`` at a time, along one
         continuous path, so the caller can end it early (``control.sweep_length``); the chunks
         joined are ``sweep(max_samples)`` with the same draws."""
         if int(chunk_samples) < 1:
             raise CommandError(f'chunk_samples must be >= 1; got {chunk_samples}')
-        full = self.sweep(max_samples, rng=rng)
+        full = self.sweep(max_samples, rng=rng, region=region)
         step = int(chunk_samples)
         for i in range(0, len(full), step):
             part = slice(i, i + step)
