@@ -72,6 +72,7 @@ class FakeRig(Node):
         self.sweeps = 0
         self.refuse_estimates = 0
         self.peeks = 0
+        self.sweep_requests, self.estimate_requests = [], []
         self.stop = threading.Event()
         self.sweeping = False
         self.fault = None
@@ -103,6 +104,7 @@ class FakeRig(Node):
 
     def _handle_sweep(self, request, response):
         self.sweeps += 1
+        self.sweep_requests.append(request)
         self.sweeping = True
         try:
             return self._sweep(request, response)
@@ -162,6 +164,7 @@ class FakeRig(Node):
             response.success = False
             response.message = 'not enough yet'
             return response
+        self.estimate_requests.append(request)
         sweep = self.sim.sweep(self.setup.shaping.samples_per_sweep)
         if self.refuse_estimates > 0:  # as the real estimator does when a sweep left gaps:
             self.refuse_estimates -= 1  # refused, with the pairs it could make
@@ -169,7 +172,8 @@ class FakeRig(Node):
             response.message = 'the sweep missed 7 of 317 key points'
             response.samples = sweep_to_msg(sweep, request.iteration, request.fan_names)
             return response
-        est = self.estimator.estimate(sweep, self.setup.geometry.key_points)
+        est = self.estimator.estimate(sweep, self.setup.geometry.key_points,
+                                      required=list(request.required) or None)
         response.estimate = estimate_to_msg(est, request.iteration, request.fan_names, request.pwm,
                                             len(sweep))
         response.samples = sweep_to_msg(sweep, request.iteration, request.fan_names)
@@ -437,6 +441,31 @@ def paper_config(tmp_path):
 def fixed_start_config(tmp_path):
     """The shipped config starting every fan at 0.5 instead of the prior's optimum."""
     return edited_config(tmp_path, 'fixed_start', [('u0: warm', 'u0: 0.5')])
+
+
+def test_with_region_sweeps_on_the_sweep_and_the_estimate_are_asked_for_the_region(graph, tmp_path):
+    """shaping.sweep.region.enabled: after the first iteration the sweep service is asked for
+    the region the step changed (its key points and reach) and the estimator for those key
+    points only; the run records the region and the fused estimate."""
+    config = edited_config(tmp_path, 'region', [('enabled: false', 'enabled: true')])
+    graph.start_coordinator(config_dir=config, sweep_duration_s=1.0, sweep_min_s=0.2)
+    for _ in range(3):
+        r = graph.iterate(target='gaussian@LM1')
+        assert r.success, r.message
+    sweeps, estimates = graph.rig.sweep_requests, graph.rig.estimate_requests
+    n_keys = len(graph.setup.geometry.key_points)
+    assert len(sweeps[0].region_x) == 0 and len(estimates[0].required) == 0
+    regional = [i for i, q in enumerate(sweeps) if len(q.region_x)]
+    assert regional, 'no iteration swept a region'
+    for i in regional:
+        flags = np.asarray(estimates[i].required, dtype=bool)
+        assert len(flags) == n_keys and 0 < flags.sum() < n_keys
+        kp = graph.setup.geometry.key_points[flags]
+        np.testing.assert_allclose(np.column_stack([sweeps[i].region_x, sweeps[i].region_y]), kp)
+        assert sweeps[i].region_reach > 0 and sweeps[i].duration_s <= 1.0
+    history = graph.store().load_history()
+    assert [i for i, h in enumerate(history) if h.info.get('region')] == regional
+    assert any('sweeping the region within' in s.message for s in graph.statuses)
 
 
 def test_step_gain_override_scales_the_step(graph, paper_config):

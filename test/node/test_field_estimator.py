@@ -95,10 +95,11 @@ class Harness:
     def begin_sweep(self):
         return self.call(self.begin, Trigger.Request())
 
-    def estimate_field(self, iteration=0, fan_names=None, pwm=U, peek=False):
+    def estimate_field(self, iteration=0, fan_names=None, pwm=U, peek=False, required=()):
         names_ = list(fan_names if fan_names is not None else self.node._fan_names)
         return self.call(self.estimate, EstimateField.Request(
-            iteration=iteration, fan_names=names_, pwm=[float(u) for u in pwm], peek=peek))
+            iteration=iteration, fan_names=names_, pwm=[float(u) for u in pwm], peek=peek,
+            required=[bool(v) for v in required]))
 
     def query_field(self, x, y):
         return self.call(self.query, QueryField.Request(x=[float(v) for v in x], y=[float(v) for v in y]))
@@ -273,6 +274,26 @@ def test_poor_coverage_fails_with_the_gap_and_publishes_nothing(harness, sim, fa
     assert harness.fields == []  # the latched field is not replaced by a failed estimate
     fault_row('sweep with poor coverage of the key points',
               'refused with the largest gap; nothing published; the coordinator sweeps again', True)
+
+
+def test_a_region_sweep_needs_only_its_key_points_passed(harness, sim):
+    """The same half-disc sweep the previous test refuses is estimated when only the key points
+    of that half are required (a region sweep); a malformed flag list is refused first and
+    leaves the sweep to estimate."""
+    kp = harness.node._key_points
+    harness.begin_sweep()
+    harness.publish(*sweep_streams(sim, n_poses=250, half_disc=True, seed=4))
+    resp = harness.estimate_field(required=[True, False])
+    assert not resp.success and 'flags 2 key points' in resp.message, resp.message
+    resp = harness.estimate_field(required=[False] * len(kp))
+    assert not resp.success and 'no key point' in resp.message, resp.message
+    half = kp[:, 0] < -0.05
+    resp = harness.estimate_field(peek=True, required=half)
+    assert resp.success, resp.message
+    resp = harness.estimate_field(required=half)
+    assert resp.success, resp.message
+    std = np.asarray(resp.estimate.std)
+    assert np.max(std[half]) < np.max(std[kp[:, 0] > 0.2])
 
 
 @pytest.mark.fault

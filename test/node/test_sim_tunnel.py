@@ -19,6 +19,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from wind_shaper_msgs.srv import Sweep  # noqa: E402
 
+from wind_shaper.core.area import SweepArea  # noqa: E402
 from wind_shaper.core.config import default_config_dir  # noqa: E402
 from wind_shaper.core.errors import ConfigError  # noqa: E402
 from wind_shaper.estimation.frames import PlateRelay, RigidTransform  # noqa: E402
@@ -76,11 +77,11 @@ class Harness:
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
 
-    def sweep(self, duration_s, timeout_s):
+    def sweep(self, duration_s, timeout_s, **region):
         client = self.client.create_client(Sweep, names.SWEEP)
         try:
             assert client.wait_for_service(timeout_sec=3.0), 'sweep service not available'
-            future = client.call_async(Sweep.Request(duration_s=float(duration_s)))
+            future = client.call_async(Sweep.Request(duration_s=float(duration_s), **region))
             assert wait_for(future.done, timeout_s), 'the sweep service did not answer in time'
             return future.result()
         finally:
@@ -244,6 +245,25 @@ def test_a_sweep_moves_the_plate_over_the_key_points_in_the_requested_time(harne
     assert gap.max() < 0.11, f'a key point is {gap.max():.3f} m from every sample'
     assert np.allclose(pts[-1], (0.0, -0.34), atol=1e-6)   # back at rest
     assert h.node.sweeps_done == 1
+    # a region sweep: the plate keeps to the region (after its transit from rest) and passes
+    # every key point in it
+    kp = h.node.live.geometry.key_points
+    area = SweepArea(kp[(kp[:, 0] > 0.1) & (kp[:, 1] > 0.0)], 0.10)
+    start = len(h.poses)
+    response = h.sweep(2.0, timeout_s=5.0, region_x=area.centres[:, 0].tolist(),
+                       region_y=area.centres[:, 1].tolist(), region_reach=area.reach)
+    assert response.success, response.message
+    time.sleep(0.1)
+    pts = []
+    for msg in list(h.poses[start:]):
+        p, q = msg.pose.position, msg.pose.orientation
+        r = relay.process(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                          (p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+        pts.append(r.position[:2])
+    pts = np.array(pts)
+    assert np.mean(area.contains(pts)) > 0.6, np.mean(area.contains(pts))
+    gap, _ = cKDTree(pts).query(area.centres)
+    assert gap.max() < 0.08, f'a region key point is {gap.max():.3f} m from every sample'
 
 
 def test_bad_sweep_requests_and_parameters_are_refused(harness, ros_context, quiet_config):
@@ -252,6 +272,11 @@ def test_bad_sweep_requests_and_parameters_are_refused(harness, ros_context, qui
     assert not response.success and 'duration_s' in response.message
     response = h.sweep(1e6, timeout_s=2.0)
     assert not response.success and 'max_sweep_duration_s' in response.message
+    response = h.sweep(1.0, timeout_s=2.0, region_x=[0.1, 0.2], region_y=[0.0], region_reach=0.1)
+    assert not response.success and '2 x but 1 y' in response.message, response.message
+    response = h.sweep(1.0, timeout_s=2.0, region_x=[0.1], region_y=[0.0], region_reach=0.0)
+    assert not response.success and 'reach > 0' in response.message, response.message
+    assert h.node.sweeps_done == 0
     with pytest.raises(ConfigError, match='fan_names'):
         SimTunnel(context=ros_context, parameter_overrides=[
             Parameter('config_dir', value=str(quiet_config)),

@@ -15,7 +15,7 @@ from ..core.errors import ConfigError
 from ..estimation import FieldEstimate, FieldEstimator
 from ..model import Term
 from ..core.tunnel import Sweep, Tunnel
-from .region import RegionPlan, change_error_after, plan_region
+from .region import RegionPlan, next_region, region_record
 from .sweep_length import SweepLength, SweepMonitor, SweepProgress
 from .update import PastIteration, UpdateInput, UpdateRule
 from .warm_start import WarmStart, first_step_rule, warm_start
@@ -65,13 +65,6 @@ class IterationRecord:
             'plate_s': round(self.plate_s, 3), 'settle_s': round(self.settle_s, 3),
             'info': self.info,
         }
-
-
-def region_info(plan: RegionPlan | None, monitor: SweepMonitor) -> dict:
-    """What a record's info says of a region sweep ({} for a whole sweep)."""
-    if plan is None:
-        return {}
-    return {**plan.to_json(), 'consistency': monitor.consistency, 'text': plan.text()}
 
 
 class ShapingLoop:
@@ -142,15 +135,11 @@ class ShapingLoop:
     def region_plan(self, U) -> RegionPlan | None:
         """Where the sweep at commands ``U`` must go (``control.region``): None for the whole
         area (the first sweep, region sweeps off, or too much of the field changed)."""
-        policy = self.sweep_length
-        if (policy is None or not policy.adaptive or not self.history
-                or not hasattr(self.tunnel, 'sweep_chunks')):
+        if not self.history or not hasattr(self.tunnel, 'sweep_chunks'):
             return None
         last = self.history[-1]
-        region = policy.region_policy
-        kappa = change_error_after(region, last.info.get('region', {}).get('consistency', float('nan')))
-        return plan_region(region, self.model, self.key_points, last.pwm, U, last.estimate.mean,
-                           last.estimate.std, policy.std_max(self.rule), kappa)
+        return next_region(self.sweep_length, self.rule, self.model, self.key_points,
+                           PastIteration(last.pwm, last.estimate.mean, last.estimate.std, last.info), U)
 
     def measure(self) -> tuple[np.ndarray, Sweep, FieldEstimate, dict]:
         """Apply the commands, sweep, estimate: (applied, sweep, estimate, region), region the
@@ -164,17 +153,17 @@ class ShapingLoop:
         monitor = SweepMonitor(policy, self.estimator, self.key_points, policy.std_max(self.rule), plan)
         parts = []
         for part in self.tunnel.sweep_chunks(self.n_samples, policy.chunk_samples,
-                                             **({} if plan is None else {'region': plan})):
+                                             **({} if plan is None else {'region': plan.area})):
             parts.append(part)
             monitor.add(part.positions)
             progress = monitor.check(Sweep.concatenate(parts))
             if self.on_progress is not None:
                 self.on_progress(progress)
             if progress.enough:
-                return applied, Sweep.concatenate(parts), monitor.estimate, region_info(plan, monitor)
+                return applied, Sweep.concatenate(parts), monitor.estimate, region_record(plan, monitor.consistency)
         sweep = Sweep.concatenate(parts)   # the longest sweep: estimated whatever its std
         estimate = monitor.estimate_now(sweep)
-        return applied, sweep, estimate, region_info(plan, monitor)
+        return applied, sweep, estimate, region_record(plan, monitor.consistency)
 
     def iterate(self, update: bool = True) -> IterationRecord:
         """One iteration; ``update=False`` only measures (used after the last update)."""

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.area import SweepArea
 from ..core.errors import ConfigError
 
 
@@ -60,26 +61,19 @@ class SweepRegion:
 @dataclass(frozen=True)
 class RegionPlan:
     """Where to sweep and what is carried over. needed: (N,) key points to sweep; carried_mean,
-    carried_std: (N,) the last estimate moved by the model's predicted change [N]; centres:
-    (K, 2) the needed key points [m]; reach [m]: the region is within ``reach`` of a centre;
-    change_error: the fraction of the predicted change taken as its error in carried_std."""
+    carried_std: (N,) the last estimate moved by the model's predicted change [N]; area: where
+    to sweep (within ``reach`` of a needed key point); change_error: the fraction of the
+    predicted change taken as its error in carried_std."""
 
     needed: np.ndarray
     carried_mean: np.ndarray
     carried_std: np.ndarray
-    centres: np.ndarray
-    reach: float
+    area: SweepArea
     change_error: float = float('nan')
 
     @property
     def share(self) -> float:
         return float(np.mean(self.needed))
-
-    def contains(self, positions) -> np.ndarray:
-        """(M,) whether each position (M, 2) [m] lies in the region."""
-        P = np.asarray(positions, dtype=float).reshape(-1, 2)
-        d = np.linalg.norm(P[:, None, :] - self.centres[None, :, :], axis=2)
-        return np.min(d, axis=1) <= self.reach
 
     def fuse(self, fresh_mean, fresh_std) -> tuple[np.ndarray, np.ndarray]:
         """Inverse-variance fusion of a fresh estimate from the region's sweep with the carried
@@ -104,14 +98,14 @@ class RegionPlan:
 
     def to_json(self) -> dict:
         return {'share': round(self.share, 4), 'needed': [int(i) for i in np.nonzero(self.needed)[0]],
-                'reach_m': self.reach, 'change_error': self.change_error,
+                'reach_m': self.area.reach, 'change_error': self.change_error,
                 'carried_std_max_N': float(np.max(self.carried_std[~self.needed]))
                 if (~self.needed).any() else None}
 
     def text(self) -> str:
         n, N = int(self.needed.sum()), len(self.needed)
-        return (f'sweeping {n} of {N} key points (the region the step changed); the other {N - n} '
-                f'carried over with the model\'s predicted change')
+        return (f'sweeping {n} of {N} key points (the region the step changed: {self.area.text()}); '
+                f'the other {N - n} carried over with the model\'s predicted change')
 
 
 def carry_over(model, U_prev, U_next, key_points, mean_prev, std_prev, change_error: float
@@ -159,7 +153,29 @@ def plan_region(policy: SweepRegion, model, key_points, U_prev, U_next, mean_pre
             needed[i] = True
     if needed.mean() > policy.max_share:
         return None
-    return RegionPlan(needed, mean, std, kp[needed], float(policy.reach), kappa)
+    return RegionPlan(needed, mean, std, SweepArea(kp[needed], policy.reach), kappa)
 
 
-__all__ = ['SweepRegion', 'RegionPlan', 'carry_over', 'change_error_after', 'plan_region']
+def next_region(sweep_length, rule, model, key_points, last, U) -> RegionPlan | None:
+    """The region plan for the sweep at commands ``U`` (n_fans,) after the iteration ``last``
+    (anything with ``U``, ``mean``, ``std`` and ``info``, as ``control.update.PastIteration``;
+    None before the first): None for the whole area. sweep_length: a ``SweepLength`` (its
+    region section and target std, for ``rule``'s noise floor); the change error grows after
+    a region sweep whose carried values proved worse than stated."""
+    if sweep_length is None or not sweep_length.adaptive or last is None or last.std is None:
+        return None
+    policy = sweep_length.region_policy
+    kappa = change_error_after(policy, dict(last.info or {}).get('region', {}).get('consistency', float('nan')))
+    return plan_region(policy, model, key_points, last.U, U, last.mean, last.std,
+                       sweep_length.std_max(rule), kappa)
+
+
+def region_record(plan: RegionPlan | None, consistency: float) -> dict:
+    """What an iteration's info says of its region sweep ({} for a whole sweep)."""
+    if plan is None:
+        return {}
+    return {**plan.to_json(), 'consistency': consistency, 'text': plan.text()}
+
+
+__all__ = ['SweepRegion', 'RegionPlan', 'carry_over', 'change_error_after', 'next_region',
+           'plan_region', 'region_record']

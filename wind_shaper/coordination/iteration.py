@@ -17,12 +17,13 @@ Commands U are fractions 0..1 of full PWM in the tunnel's fan order; forces [N];
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
 from ..control import PastIteration, UpdateInput
+from ..control.region import RegionPlan, next_region, region_record
 from ..control.warm_start import WarmStart, first_step_rule, warm_start
 from ..core.config import read_yaml
 from ..core.errors import ConfigError, WindShaperError
@@ -82,11 +83,13 @@ class RigPorts(Protocol):
     async def begin_sweep(self) -> None:
         """Tell the estimator to start collecting (it keeps collecting over re-sweeps)."""
 
-    async def sweep(self, k: int, attempt: int) -> None:
-        """Move the plate once (or give an operator the time); raise if the fans left U."""
+    async def sweep(self, k: int, attempt: int, plan: RegionPlan | None = None) -> None:
+        """Move the plate once (or give an operator the time), over the whole area or over
+        ``plan.area`` (a region sweep); raise if the fans left U."""
 
-    async def estimate(self, k: int, U: np.ndarray) -> FieldAnswer:
-        """Ask the estimator for the field from everything collected since begin_sweep."""
+    async def estimate(self, k: int, U: np.ndarray, plan: RegionPlan | None = None) -> FieldAnswer:
+        """Ask the estimator for the field from everything collected since begin_sweep (a
+        region sweep: only ``plan.needed`` key points must have been passed)."""
 
 
 class FanWatch:
@@ -248,9 +251,19 @@ class ShapingRun:
         return model
 
     # -- the update ----------------------------------------------------------------------------------
-    def complete(self, k: int, U: np.ndarray, rule, answer: FieldAnswer, stamps: dict) -> IterationData:
+    def region_plan(self, U: np.ndarray, rule) -> RegionPlan | None:
+        """Where the sweep at commands ``U`` must go: None for the whole area (the first
+        iteration, region sweeps off in shaping.yaml, or too much of the field changed)."""
+        if not self.history:
+            return None
+        return next_region(self.setup.shaping.make_sweep_length(), rule, self.model,
+                           self.key_points, self.history[-1], U)
+
+    def complete(self, k: int, U: np.ndarray, rule, answer: FieldAnswer, stamps: dict,
+                 region: dict | None = None) -> IterationData:
         """The update rule's step from the measured field, bounded; written to the run folder
-        before the run advances to k + 1 (so a crash leaves either the old or the new state)."""
+        before the run advances to k + 1 (so a crash leaves either the old or the new state).
+        region: the region sweep's record (``control.region.region_record``), if it was one."""
         kp = np.asarray(answer.key_points, dtype=float)
         if kp.shape != self.key_points.shape or not np.allclose(kp, self.key_points, atol=1e-9):
             raise IterationStopped(FAILED, f'the field estimator used {len(kp)} other key points '
@@ -283,7 +296,8 @@ class ShapingRun:
             estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
             timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
                                      'estimator_compute_s': float(answer.compute_s),
-                                     **tunnel_time(stamps), **dict(step.info), **warm_info})
+                                     **tunnel_time(stamps), **dict(step.info), **warm_info,
+                                     **({'region': region} if region else {})})
         self.last_record_folder = self.store.write_iteration(data)
         self.warm = None
         self.history.append(past_iteration(U, mean, std, data.info))
@@ -299,6 +313,8 @@ class ShapingRun:
                 f'{len(data.sweep)} pairs')
         if 'plate_s' in data.info:
             text += f'; tunnel time {data.info["plate_s"]:.1f} s sweeping, {data.info["settle_s"]:.1f} s settling'
+        if data.info.get('region'):
+            text += f'; {data.info["region"]["text"]}'
         check = data.info.get('warm_start', {}).get('check_text')
         if check:
             text += ('; WARNING: ' if data.info['warm_start']['check']['mismatch'] else '; ') + check
@@ -346,15 +362,17 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
 
     # 2. sweeping, 3. estimating: the estimator refuses a sweep that missed part of the area or
     # has too few samples, and keeps collecting; sweep again at the same commands and estimate
-    # on all of it.
+    # on all of it. With region sweeps on, only the region the last step changed is swept and
+    # the rest carried over (control.region).
+    plan = run.region_plan(U, rule)
     await ports.begin_sweep()
     stamps['sweep_started'] = clock()
     for attempt in range(1, max_sweeps + 1):
-        await ports.sweep(k, attempt)
+        await ports.sweep(k, attempt, plan)
         stamps['sweep_ended'] = clock()
         ports.check_boundary()
         ports.set_state(ESTIMATING, f'iteration {k}: estimating the field')
-        answer = await ports.estimate(k, U)
+        answer = await ports.estimate(k, U, plan)
         if answer.success:
             break
         if attempt == max_sweeps:
@@ -365,9 +383,15 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
     stamps['estimated'] = clock()
     ports.check_boundary()
 
+    region = {}
+    if plan is not None:
+        region = region_record(plan, plan.consistency(answer.mean, answer.std))
+        mean, std = plan.fuse(answer.mean, answer.std)
+        answer = replace(answer, mean=mean, std=std)
+
     # 4. updating
     ports.set_state(UPDATING, f'iteration {k}: updating the commands')
-    return run.complete(k, U, rule, answer, stamps)
+    return run.complete(k, U, rule, answer, stamps, region=region)
 
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',

@@ -42,6 +42,7 @@ from wind_shaper_msgs.srv import EstimateField, RunIteration, SetModel, Sweep
 
 from ..app import Setup
 from ..coordination import FanWatch, FieldAnswer, IterationStopped, ShapingRun, run_iteration
+from ..control.region import RegionPlan
 from ..coordination.iteration import PROGRESS
 from ..core.errors import ConfigError, WindShaperError
 from ..estimation import coverage_share
@@ -301,15 +302,16 @@ class CoordinatorNode(Node):
             self._samples = 0
             self._coverage = self._max_std = math.nan
 
-    async def sweep(self, k: int, attempt: int) -> None:
-        """Move the plate once (sweep service) or give an operator the sweep's duration; a sweep
-        during which the fans left their commands (or stopped reporting) is refused."""
+    async def sweep(self, k: int, attempt: int, plan: RegionPlan | None = None) -> None:
+        """Move the plate once (sweep service) or give an operator the sweep's duration, over
+        the whole area or ``plan``'s region; a sweep during which the fans left their commands
+        (or stopped reporting) is refused."""
         self._fan_watch = watch = FanWatch(time.monotonic(), self.command_in_force(),
                                            self.params.apply_tolerance)
         with self._lock:
             self._counting = True
         try:
-            await self._move_plate(k, attempt)
+            await self._move_plate(k, attempt, plan)
         finally:
             self._fan_watch = None
             with self._lock:
@@ -325,45 +327,57 @@ class CoordinatorNode(Node):
                 f'sweep discarded: {problem} (fan_output restarted, the autopilot link dropped, '
                 f'or an emergency stop?); {stays}')
 
-    async def _move_plate(self, k: int, attempt: int) -> None:
+    async def _move_plate(self, k: int, attempt: int, plan: RegionPlan | None) -> None:
         p, duration = self.params, self.sweep_duration_s
         doing = self._collect.where(k) if self._collect.active else f'iteration {k}'
         again = '' if attempt == 1 else f' (sweep {attempt} of {p.max_sweeps})'
+        where, request = 'the whole area', Sweep.Request(duration_s=duration, seed=0)
+        if plan is not None:
+            # the region's share of the disc sets the time, with room to spare; never below
+            # the sweep's minimum
+            share = plan.area.disc_share(self._run.setup.geometry.sweep_radius)
+            duration = min(duration, max(p.sweep_min_s, 1.5 * share * duration))
+            where = f'the region {plan.area.text()} ({int(plan.needed.sum())} key points)'
+            request = Sweep.Request(duration_s=duration, seed=0,
+                                    region_x=[float(v) for v in plan.area.centres[:, 0]],
+                                    region_y=[float(v) for v in plan.area.centres[:, 1]],
+                                    region_reach=plan.area.reach)
         # an iteration's sweep is watched (live coverage and std) and, with shaping.sweep.adaptive,
         # ends once the estimate is good enough; a designed experiment's rows sweep in full
         watched = not self._collect.active
         if self._sweep_client is not None:
             self.set_state(IterationStatus.STATE_SWEEPING,
-                           f'{doing}: sweeping for {duration:g} s{again}')
+                           f'{doing}: sweeping {where} for {duration:g} s{again}')
             what = 'the sweep (sim_tunnel or motion stage)'
             if not watched:
-                moved = await self._call(self._sweep_client, Sweep.Request(duration_s=duration, seed=0),
-                                         what, duration + p.service_timeout_s)
+                moved = await self._call(self._sweep_client, request, what,
+                                         duration + p.service_timeout_s)
             else:
-                moved = await self._watched_sweep(k, duration, what)
+                moved = await self._watched_sweep(k, duration, what, request, plan)
             if not moved.success:
                 raise IterationStopped(IterationStatus.STATE_FAILED,
                                        f'the sweep failed: {moved.message}')
         else:
             self.set_state(IterationStatus.STATE_SWEEPING,
-                           f'{doing}: move the plate over the whole area now '
+                           f'{doing}: move the plate over {where} now '
                            f'({duration:g} s){again}')
             if watched:
-                if await self._watch_sweep(k, duration, None):
+                if await self._watch_sweep(k, duration, None, plan):
                     self.set_state(IterationStatus.STATE_SWEEPING,
                                    f'{doing}: enough samples, you can stop sweeping')
             else:
                 await self._waits.wait(None, self._waits.remaining(duration))
             self.check_boundary()
 
-    async def _watched_sweep(self, k: int, duration: float, what: str):
+    async def _watched_sweep(self, k: int, duration: float, what: str, request: Sweep.Request,
+                             plan: RegionPlan | None):
         """The sweep service's motion, watched; stopped early (stop_sweep_service) when the
         estimate is good enough. Returns the sweep service's response."""
         p, client = self.params, self._sweep_client
         await self._waits.wait_ready(client, what, p.service_timeout_s)
-        future = client.call_async(Sweep.Request(duration_s=duration, seed=0))
+        future = client.call_async(request)
         try:
-            enough = await self._watch_sweep(k, duration, future)
+            enough = await self._watch_sweep(k, duration, future, plan)
             if enough and not future.done() and self._stop_sweep_client is not None:
                 if self._stop_sweep_client.service_is_ready():
                     await self._call(self._stop_sweep_client, Trigger.Request(), 'the sweep stop',
@@ -378,12 +392,13 @@ class CoordinatorNode(Node):
                                           f'{duration + p.service_timeout_s:g} s')
         return future.result()
 
-    async def _watch_sweep(self, k: int, duration: float, motion) -> bool:
+    async def _watch_sweep(self, k: int, duration: float, motion, plan: RegionPlan | None = None) -> bool:
         """Ask the field_estimator how far the sweep is every sweep_check_s (live coverage and
         largest std in the status) until ``motion`` (the sweep service's future, or None for an
         operator) ends or ``duration`` passes; True as soon as the estimate is good enough
         (past sweep_min_s, every key point passed, std <= the threshold) when
-        shaping.sweep.adaptive is on."""
+        shaping.sweep.adaptive is on. A region sweep (``plan``) counts its key points only and
+        judges the std of the estimate fused with what it carries over."""
         p = self.params
         t0 = time.monotonic()
         while True:
@@ -401,7 +416,7 @@ class CoordinatorNode(Node):
             if motion is not None and motion.done():
                 return False
             try:
-                coverage, max_std = await self._peek(k)
+                coverage, max_std = await self._peek(k, plan)
             except IterationStopped as exc:
                 if self._waits.ending():   # a cancel or the iteration's deadline ends it here
                     raise
@@ -419,30 +434,37 @@ class CoordinatorNode(Node):
                     f'{self._sweep_std_max:.3f} N): ending the sweep')
                 return True
 
-    async def _peek(self, k: int) -> tuple[float, float]:
-        """(coverage [0..1], largest std [N] or NaN) of the sweep so far."""
+    async def _peek(self, k: int, plan: RegionPlan | None = None) -> tuple[float, float]:
+        """(coverage [0..1], largest std [N] or NaN) of the sweep so far; a region sweep's
+        coverage of its own key points, its std fused with what it carries over."""
         U = self.command_in_force()
         wait = max(2.0, self.params.sweep_check_s)   # short: the sweep goes on without it
         answer = await self._waits.call(
             self._estimate_client,
             EstimateField.Request(iteration=k, fan_names=self._fan_names,
-                                  pwm=[float(u) for u in U], peek=True),
+                                  pwm=[float(u) for u in U], peek=True, required=required(plan)),
             'field_estimator', wait, ready_timeout_s=wait)
+        key_points = self._run.key_points if plan is None else self._run.key_points[plan.needed]
         coverage = math.nan
         if len(answer.samples.t):
             pos = np.column_stack([answer.samples.x, answer.samples.y])
-            coverage = coverage_share(pos, self._run.key_points, self._coverage_radius)
-        max_std = float(np.max(answer.estimate.std)) if answer.success and len(answer.estimate.std) else math.nan
-        return coverage, max_std
+            coverage = coverage_share(pos, key_points, self._coverage_radius)
+        if not (answer.success and len(answer.estimate.std)):
+            return coverage, math.nan
+        std = np.asarray(answer.estimate.std, dtype=float)
+        if plan is not None:
+            std = plan.fuse(np.asarray(answer.estimate.mean, dtype=float), std)[1]
+        return coverage, float(np.max(std))
 
     async def _call(self, client, request, what: str, timeout_s: float, *, resend: bool = False):
         return await self._waits.call(client, request, what, timeout_s, resend=resend,
                                       ready_timeout_s=self.params.service_timeout_s)
 
-    async def estimate(self, k: int, U: np.ndarray) -> FieldAnswer:
+    async def estimate(self, k: int, U: np.ndarray, plan: RegionPlan | None = None) -> FieldAnswer:
         answer = await self._call(
             self._estimate_client,
-            EstimateField.Request(iteration=k, fan_names=self._fan_names, pwm=[float(u) for u in U]),
+            EstimateField.Request(iteration=k, fan_names=self._fan_names, pwm=[float(u) for u in U],
+                                  required=required(plan)),
             'field_estimator', self.params.service_timeout_s, resend=True)
         if not answer.success:  # a refused sweep's pairs come along when they could be paired
             refused = sweep_from_msg(answer.samples) if len(answer.samples.t) else None
@@ -622,6 +644,11 @@ class CoordinatorNode(Node):
         response.message = f'prior set from {source}: {model!r}'
         self.get_logger().info(response.message)
         return response
+
+
+def required(plan: RegionPlan | None) -> list[bool]:
+    """EstimateField's ``required`` flags for a region sweep (empty: every key point)."""
+    return [] if plan is None else [bool(v) for v in plan.needed]
 
 
 def main(args=None) -> int:

@@ -168,11 +168,12 @@ class FieldEstimatorNode(Node):
                 raise WindShaperError('no sweep was collected: call begin_sweep, move the plate, '
                                       'then call estimate')
             pwm = self._request_pwm(request)
+            required = self._required(request)
             finite = pose_t[np.isfinite(pose_t)]
             t_start = float(finite.min()) if len(finite) else 0.0
             t_compute = time.perf_counter()
             sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
-            est = self._estimator.estimate(sweep, self._key_points)
+            est = self._estimator.estimate(sweep, self._key_points, required=required)
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             with self._lock:
@@ -220,6 +221,7 @@ class FieldEstimatorNode(Node):
         sweep = None
         try:
             pwm = self._request_pwm(request)
+            required = self._required(request)
             finite = pose_t[np.isfinite(pose_t)]
             t_start = float(finite.min()) if len(finite) else 0.0
             t_compute = time.perf_counter()
@@ -227,7 +229,7 @@ class FieldEstimatorNode(Node):
             names_ = list(request.fan_names)
             response.samples = sweep_to_msg(sweep, request.iteration, names_,
                                             stamp=seconds_to_stamp(t_start))
-            est = self._estimator.estimate(sweep, self._key_points)
+            est = self._estimator.estimate(sweep, self._key_points, required=required)
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             response.success = False
@@ -272,6 +274,21 @@ class FieldEstimatorNode(Node):
                                   f'({self._fan_names}): the coordinator and the field estimator '
                                   f'must read the same config_dir')
         return np.asarray(request.pwm, dtype=float)
+
+    def _required(self, request: EstimateField.Request) -> np.ndarray | None:
+        """The key points a region sweep must have passed (None: all of them)."""
+        if len(request.required) == 0:
+            return None
+        if len(request.required) != len(self._key_points):
+            raise WindShaperError(f'the request flags {len(request.required)} key points as required '
+                                  f'but tunnel.yaml has {len(self._key_points)}: give one flag per '
+                                  f'key point (or none for all); the coordinator and the field '
+                                  f'estimator must read the same config_dir')
+        required = np.asarray(request.required, dtype=bool)
+        if not required.any():
+            raise WindShaperError('the request flags no key point as required: a region sweep needs '
+                                  'at least one (send none to require all)')
+        return required
 
     def destroy_node(self):
         if self._journal is not None:

@@ -39,6 +39,7 @@ from std_srvs.srv import Trigger
 from wind_shaper_msgs.srv import Place, Sweep
 
 from ..app import Setup, hidden_effects
+from ..core.area import SweepArea
 from ..core.errors import ConfigError, WindShaperError
 from ..protocols.errors import ProtocolConfigError
 from ..protocols.mavlink_fans import FanChannel, FanChannelMap
@@ -311,12 +312,14 @@ class SimTunnel(Node):
             return response
         t_start = time.monotonic()
         try:
-            motion = self.live.start_sweep(request.duration_s, int(request.seed))
+            region = sweep_area(request)
+            motion = self.live.start_sweep(request.duration_s, int(request.seed), region=region)
         except WindShaperError as exc:
             response.success = False
             response.message = str(exc)
             return response
-        self.get_logger().info(f'sweep of {request.duration_s:g} s started')
+        where = '' if region is None else f' over {region.text()}'
+        self.get_logger().info(f'sweep of {request.duration_s:g} s started{where}')
         await self._motion_end(motion)
         response.duration_s = time.monotonic() - t_start
         if self._stop.is_set():
@@ -364,6 +367,16 @@ class SimTunnel(Node):
     def destroy_node(self):
         self._close_links()
         return super().destroy_node()
+
+
+def sweep_area(request: Sweep.Request) -> SweepArea | None:
+    """A Sweep request's region (None: the whole disc); ConfigError says what is wrong with it."""
+    if len(request.region_x) == 0 and len(request.region_y) == 0:
+        return None
+    if len(request.region_x) != len(request.region_y):
+        raise ConfigError(f'the sweep region has {len(request.region_x)} x but {len(request.region_y)} '
+                          f'y values: give one (x, y) per region point')
+    return SweepArea(np.column_stack([request.region_x, request.region_y]), request.region_reach)
 
 
 def main(args=None) -> int:

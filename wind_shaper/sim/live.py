@@ -151,15 +151,16 @@ class Motion:
         return xs[i] + f * (xs[i + 1] - xs[i]), ys[i] + f * (ys[i + 1] - ys[i])
 
 
-def sweep_speed(path, duration_s: float, radius: float, max_speed: float = math.inf) -> float:
-    """Plate speed [m/s] for ``path`` to cover the disc of ``radius`` [m] in ``duration_s`` [s]:
-    one serpentine tour at the path's lane spacing is about 1.1 pi r^2 / spacing + 2 r long. Never
-    slower than the path's own speed, never faster than ``max_speed`` (then ``TourPath`` widens
-    its lanes to still cross the whole disc)."""
+def sweep_speed(path, duration_s: float, radius: float, max_speed: float = math.inf,
+                share: float = 1.0) -> float:
+    """Plate speed [m/s] for ``path`` to cover the disc of ``radius`` [m] (or ``share`` of it, a
+    region sweep) in ``duration_s`` [s]: one serpentine tour at the path's lane spacing is about
+    1.1 pi r^2 share / spacing + 2 r long. Never slower than the path's own speed, never faster
+    than ``max_speed`` (then ``TourPath`` widens its lanes to still cross the whole area)."""
     if not duration_s > 0:
         raise CommandError(f'a sweep needs duration_s > 0; got {duration_s}')
     spacing = float(getattr(path, 'lane_spacing', _DEFAULT_SPACING))
-    length = 1.1 * math.pi * radius ** 2 / spacing + 2 * radius
+    length = 1.1 * math.pi * radius ** 2 * share / spacing + 2 * radius
     base = float(getattr(path, 'speed', 0.0))
     return min(max(base, length / duration_s), max_speed)
 
@@ -181,12 +182,13 @@ def transit_time(rest, radius: float, transit_s: float, max_speed: float) -> flo
 
 def plan_sweep(path, duration_s: float, radius: float, rest, rng: np.random.Generator, t0: float,
                *, rate_hz: float = 200.0, transit_s: float = 0.3,
-               max_speed: float = math.inf) -> Motion:
+               max_speed: float = math.inf, region=None) -> Motion:
     """The plate's motion for one sweep of ``duration_s`` [s] starting at ``t0`` [s]: from
     ``rest`` (2,) [m] to the start of the path, along the sweep path within ``radius`` [m] (speed
     from ``sweep_speed``, at most ``max_speed`` [m/s]), back to ``rest``. Each transit takes
     ``transit_time`` but at most a quarter of the sweep (a very short sweep then moves faster);
-    the whole motion lasts ``duration_s`` to one sample (1 / rate_hz)."""
+    the whole motion lasts ``duration_s`` to one sample (1 / rate_hz). region: a
+    ``core.area.SweepArea`` to keep the path to (its share of the disc sets the speed)."""
     if not duration_s > 0:
         raise CommandError(f'a sweep needs duration_s > 0; got {duration_s}')
     if not rate_hz > 0:
@@ -196,9 +198,11 @@ def plan_sweep(path, duration_s: float, radius: float, rest, rng: np.random.Gene
     n_transit = int(round(transit * rate_hz)) + 1 if transit > 0 else 0
     n_path = max(n_total - 2 * max(n_transit - 1, 0), 2)
     path_s = (n_path - 1) / rate_hz
+    share = 1.0 if region is None else max(region.disc_share(radius), 0.02)
     if hasattr(path, 'speed'):
-        path = replace(path, speed=sweep_speed(path, path_s, radius, max_speed))
-    body = path(n_path, 1.0 / rate_hz, radius, rng)
+        path = replace(path, speed=sweep_speed(path, path_s, radius, max_speed, share))
+    body = (path(n_path, 1.0 / rate_hz, radius, rng) if region is None
+            else path(n_path, 1.0 / rate_hz, radius, rng, region=region))
     parts = [body]
     if n_transit >= 2:
         parts = [_transit(rest, body[0], n_transit)[:-1], body, _transit(body[-1], rest, n_transit)[1:]]
@@ -366,10 +370,12 @@ class LiveTunnel:
         """The current (or last) plate motion."""
         return self._motion
 
-    def start_sweep(self, duration_s: float, seed: int = 0, t0: float | None = None) -> Motion:
+    def start_sweep(self, duration_s: float, seed: int = 0, t0: float | None = None,
+                    region=None) -> Motion:
         """Plan and start a sweep of ``duration_s`` [s] now (or at ``t0``) from the rest position;
-        ``seed`` 0 takes the next seed of this tunnel's sequence. Refused (CommandError) while the
-        plate moves (a sweep, or the way back to rest after ``stop_sweep``)."""
+        ``seed`` 0 takes the next seed of this tunnel's sequence; ``region`` (a
+        ``core.area.SweepArea``): sweep only that part of the disc. Refused (CommandError) while
+        the plate moves (a sweep, or the way back to rest after ``stop_sweep``)."""
         now = self.clock()
         with self._lock:
             if self.sweeping(now):
@@ -380,7 +386,7 @@ class LiveTunnel:
             motion = plan_sweep(self.tunnel.path, duration_s, self.geometry.sweep_radius,
                                 self.rest_position, np.random.default_rng(key),
                                 now if t0 is None else t0, rate_hz=self.path_rate_hz,
-                                transit_s=self.transit_s, max_speed=self.max_speed)
+                                transit_s=self.transit_s, max_speed=self.max_speed, region=region)
             self._motion = motion
         return motion
 

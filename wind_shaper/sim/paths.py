@@ -2,9 +2,8 @@
 
 A path is a callable ``path(n, dt, radius, rng, region=None) -> (n, 2)`` positions [m, tunnel
 frame] of the plate centre, sampled every ``dt`` [s], all within ``radius`` [m] of the axis;
-``region``, when given, is the part of the disc to sweep: anything with ``centres`` (K, 2) [m],
-``reach`` [m] and ``contains(positions) -> bool`` (``control.region.RegionPlan``), the positions
-within ``reach`` of a centre. A tour then sweeps each cluster of centres in turn.
+``region``, when given, is the part of the disc to sweep (a ``core.area.SweepArea``): a tour
+then sweeps each of its patches in turn.
 """
 from __future__ import annotations
 
@@ -25,15 +24,6 @@ def _resample(poly: np.ndarray, step: float, n: int) -> np.ndarray:
     return np.column_stack([np.interp(target, s, poly[:, 0]), np.interp(target, s, poly[:, 1])])
 
 
-def _region_share(inside, radius: float) -> float:
-    """The share of the disc of ``radius`` [m] that ``inside`` covers (a 41 x 41 grid)."""
-    g = np.linspace(-radius, radius, 41)
-    X, Y = np.meshgrid(g, g)
-    P = np.column_stack([X.ravel(), Y.ravel()])
-    P = P[np.hypot(P[:, 0], P[:, 1]) <= radius]
-    return float(np.mean(inside(P)))
-
-
 def _keep(poly: np.ndarray, inside, step: float) -> np.ndarray:
     """The parts of polyline ``poly`` inside the region, resampled every ``step`` [m]; joined in
     order, so the plate moves straight from one part to the next."""
@@ -41,19 +31,6 @@ def _keep(poly: np.ndarray, inside, step: float) -> np.ndarray:
     fine = _resample(poly, step, int(np.sum(seg) / step) + 2)
     kept = fine[inside(fine)]
     return kept if len(kept) >= 2 else poly
-
-
-def _clusters(centres: np.ndarray, link: float) -> list[np.ndarray]:
-    """Centres (K, 2) [m] grouped so that centres closer than ``link`` [m] share a group
-    (single linkage), each group as an index array."""
-    K = len(centres)
-    label = np.arange(K)
-    d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
-    for i in range(K):
-        for j in range(i + 1, K):
-            if d[i, j] < link and label[i] != label[j]:
-                label[label == label[j]] = label[i]
-    return [np.flatnonzero(label == v) for v in np.unique(label)]
 
 
 def _inside(p: np.ndarray, radius: float) -> np.ndarray:
@@ -106,7 +83,7 @@ class TourPath:
         def inside(P):
             return region.contains(P) & (np.hypot(P[:, 0], P[:, 1]) <= radius)
 
-        groups = _clusters(centres, 2 * region.reach)
+        groups = region.clusters()
         order, left = [], list(range(len(groups)))
         at = centres[groups[int(rng.integers(len(groups)))]].mean(axis=0)
         while left:
@@ -128,7 +105,7 @@ class TourPath:
         length = step * max(n - 1, 1)
         area = np.pi * radius ** 2
         if region is not None:  # lanes as dense over the region as over the disc
-            area *= max(_region_share(region.contains, radius), 0.02)
+            area *= max(region.disc_share(radius), 0.02)
         # one tour is about area / spacing long (plus turns): widen the lanes of a path too short
         # for one full tour at lane_spacing, so it still crosses the whole disc
         spacing = min(max(self.lane_spacing, 1.1 * area / max(length, 1e-9)), radius)

@@ -124,8 +124,8 @@ class SimulatedTunnel:
               region=None) -> Sweep:
         """Move the plate along a smooth random path within ``geometry.sweep_radius`` at
         ``sample_rate_hz`` and record noisy force [N] and mocap position [m] (1000 samples = 20 s
-        at 50 Hz, like the rig); ``region`` (a ``control.region.RegionPlan``, see ``sim.paths``):
-        keep the path to that region."""
+        at 50 Hz, like the rig); ``region`` (a ``core.area.SweepArea``): keep the path to that
+        part of the disc."""
         if int(n_samples) < 1:
             raise CommandError(f'a sweep needs n_samples >= 1; got {n_samples}')
         n = int(n_samples)

@@ -9,6 +9,7 @@ import pytest
 from wind_shaper.app import Setup, shaping_loop_on_sim
 from wind_shaper.control.region import RegionPlan, SweepRegion, carry_over, change_error_after, plan_region
 from wind_shaper.control.sweep_length import SweepLength, fused_estimate
+from wind_shaper.core.area import SweepArea
 from wind_shaper.core.errors import ConfigError, SweepError
 from wind_shaper.estimation import Coverage, FieldEstimator
 from wind_shaper.sim import NoiseModel
@@ -53,7 +54,7 @@ def test_only_the_key_points_the_step_changed_are_swept_and_the_rest_is_a_compac
     prev = np.zeros(len(kp)), np.full(len(kp), 0.02)
     plan = plan_region(policy, Linear(G), kp, [0.3, 0.3], [0.5, 0.3], *prev, std_max=0.05)
     assert np.array_equal(plan.needed, kp[:, 0] > 0.05)
-    assert plan.contains(kp[plan.needed]).all()
+    assert plan.area.contains(kp[plan.needed]).all()
     assert np.all(plan.carried_std[~plan.needed] <= 0.05)
     # a step that changes nearly nothing: a compact patch of min_share around the stalest point
     std = np.full(len(kp), 0.02)
@@ -68,7 +69,7 @@ def test_only_the_key_points_the_step_changed_are_swept_and_the_rest_is_a_compac
 
 def test_fusion_weighs_by_inverse_variance_and_consistency_judges_the_carried_values():
     plan = RegionPlan(np.array([True, True, False]), np.array([1.0, 1.0, 1.0]),
-                      np.array([0.1, 0.1, 0.01]), np.zeros((2, 2)), 0.1, 0.5)
+                      np.array([0.1, 0.1, 0.01]), SweepArea(np.zeros((2, 2)), 0.1), 0.5)
     mean, std = plan.fuse([2.0, 2.0, 5.0], [0.1, 0.01, 10.0])
     np.testing.assert_allclose(mean[:2], [1.5, 1.0 + 100 / 101])
     assert mean[2] == pytest.approx(1.0, abs=1e-5) and std[2] == pytest.approx(0.01, rel=1e-4)
@@ -84,7 +85,7 @@ def test_fusion_weighs_by_inverse_variance_and_consistency_judges_the_carried_va
 def test_a_region_path_keeps_to_the_region_and_passes_its_key_points_sooner():
     kp = _grid()
     needed = (kp[:, 0] > 0.1) & (kp[:, 1] > 0.0)
-    plan = RegionPlan(needed, np.zeros(len(kp)), np.zeros(len(kp)), kp[needed], 0.10)
+    area = SweepArea(kp[needed], 0.10)
 
     def samples_to_cover(**region):
         p = TourPath()(1000, 0.02, 0.34, np.random.default_rng(4), **region)
@@ -95,10 +96,10 @@ def test_a_region_path_keeps_to_the_region_and_passes_its_key_points_sooner():
                 return i + 1, p
         return None, p
 
-    n_region, p = samples_to_cover(region=plan)
+    n_region, p = samples_to_cover(region=area)
     n_whole, _ = samples_to_cover()
     assert n_region is not None and n_whole is not None and n_region < 0.6 * n_whole, (n_region, n_whole)
-    assert np.mean(plan.contains(p)) > 0.85
+    assert np.mean(area.contains(p)) > 0.85
     assert np.all(np.hypot(p[:, 0], p[:, 1]) <= 0.34 + 1e-9)
 
 
@@ -107,8 +108,7 @@ def test_the_estimator_needs_only_the_region_key_points_passed(setup):
     kp = setup.geometry.key_points
     sim.apply(np.full(7, 0.4))
     needed = kp[:, 0] > 0.12
-    plan = RegionPlan(needed, np.zeros(len(kp)), np.zeros(len(kp)), kp[needed], 0.10)
-    sweep = sim.sweep(300, region=plan)
+    sweep = sim.sweep(300, region=SweepArea(kp[needed], 0.10))
     est = FieldEstimator().estimate(sweep, kp, required=needed)
     assert est.std[needed].max() < est.std[~needed].max()
     with pytest.raises(SweepError, match='missed .* the whole area'):
@@ -164,7 +164,7 @@ def test_the_region_sweep_catches_a_model_whose_predicted_change_is_wrong(setup)
     for name, m in (('prior', model), ('3x', model.with_theta(theta))):
         plan = plan_region(policy, m, kp, U0, U1, prev.mean, prev.std, std_max=0.06)
         assert plan is not None and 0.1 < plan.share < 0.9
-        sweep = sim.sweep(600, region=plan, rng=np.random.default_rng(5))
+        sweep = sim.sweep(600, region=plan.area, rng=np.random.default_rng(5))
         fused, checks[name] = fused_estimate(estimator, sweep, kp, plan)
     assert checks['prior'] < 1.0 < checks['3x'] and checks['3x'] > 4 * checks['prior'], checks
     assert change_error_after(policy, checks['3x']) > policy.change_error

@@ -1,6 +1,7 @@
 """coordination.iteration: the coordinator's run and state machine, driven by plain asyncio ports
 on the simulated tunnel (no rclpy)."""
 import asyncio
+from dataclasses import replace
 import math
 
 import numpy as np
@@ -116,3 +117,29 @@ def test_the_fan_watch_names_the_fan_that_left_its_command():
     assert 'B at 0.200 instead of 0.500' in watch.problem(2.0, 2.0, ['A', 'B', 'C'])
     quiet = FanWatch(0.0, [0.5], tolerance=0.01)
     assert 'did not report' in quiet.problem(3.0, 2.0, ['A'])
+
+
+def test_with_region_sweeps_on_the_graph_sweeps_only_the_changed_region_and_fuses(setup, tmp_path):
+    """shaping.sweep.region.enabled: the first iteration sweeps everything; the next ones pass
+    their region to the sweep and the estimator, fuse the answer with what they carry over,
+    and record it; a resumed run plans its region from the stored history."""
+    sweep = {**dict(setup.shaping.sweep or {}), 'region': {'enabled': True}}
+    on = replace(setup, shaping=replace(setup.shaping, sweep=sweep))
+    run = open_run(on, tmp_path, target='gaussian@LM1')
+    ports = SimPorts(on, seed=4)
+    records = [asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=2)) for _ in range(4)]
+    assert ports.plans[0] is None and 'region' not in records[0].info
+    planned = [i for i, p in enumerate(ports.plans) if p is not None]
+    assert planned and planned[0] >= 1
+    for i in planned:
+        plan, info = ports.plans[i], records[i].info['region']
+        assert info['needed'] == [int(j) for j in np.flatnonzero(plan.needed)]
+        assert 0 < info['share'] < 1 and np.isfinite(info['consistency'])
+        # the stored estimate is the fused one: carried key points keep about their carried std
+        std = records[i].estimate.std
+        assert np.all(std[~plan.needed] <= plan.carried_std[~plan.needed] + 1e-9)
+        assert 'sweeping' in ShapingRun.done_message(records[i]) and 'carried over' in ShapingRun.done_message(records[i])
+    again = open_run(on, tmp_path, target='gaussian@LM1')
+    plan = again.region_plan(again.U, again.prepare()[1])
+    assert plan is None or plan.share < 1
+    assert again.history[-1].info.get('region', {}).get('needed') == records[-1].info.get('region', {}).get('needed')
