@@ -12,6 +12,7 @@ Methods:
   adaptive    the adaptive update from U0 = 0.5, 1000-sample sweeps (the previous default)
   warm        the adaptive update from the prior's optimum (warm start), 1000-sample sweeps
   warm+short  the warm start with sweeps as long as needed (the shipped default)
+  warm+region warm+short, and after the first sweep only the region the step changed
 
 Plants (the prior is calibrated on each plant, as a lab would with `wind-shaper calibrate`,
 unless said otherwise):
