@@ -134,8 +134,10 @@ def format_iteration(rec: IterationRecord, names: Sequence[str]) -> str:
     true = '' if rec.true_error is None else f' true {np.sqrt(rec.true_error):6.3f} N'
     pwm = ' '.join(f'{n}={100 * u:4.1f}' for n, u in zip(names, rec.pwm))
     lam = '' if rec.step_size is None else f' step {rec.step_size:.3f}'
+    region = rec.info.get('region')
+    where = f' (region {100 * region["share"]:.0f} %)' if region else ''
     return (f'k={rec.k:2d}  RMSE est {np.sqrt(rec.error):6.3f} N{true}{lam}  sweep {rec.plate_s:4.1f} s'
-            f'  PWM% {pwm}')
+            f'{where}  PWM% {pwm}')
 
 
 __all__ = ['Setup', 'hidden_effects', 'calibrate', 'save_fit', 'shape_on_sim', 'shaping_loop_on_sim',
