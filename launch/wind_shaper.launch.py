@@ -3,6 +3,7 @@
     ros2 launch wind_shaper wind_shaper.launch.py                 # on the rig
     ros2 launch wind_shaper wind_shaper.launch.py sim:=true       # on the simulated rig
     ros2 launch wind_shaper wind_shaper.launch.py config_dir:=/path/to/lab/config
+    ros2 launch wind_shaper wind_shaper.launch.py namespace:=tunnel_b   # a second tunnel
 
 Each node reads config_dir/<node>.yaml; the nodes that also read the core's tunnel.yaml,
 shaping.yaml, model.yaml, sim.yaml get config_dir as their config_dir parameter. With
@@ -32,7 +33,8 @@ def node(name):
     if name in USES_CONFIG_DIR:
         parameters.append({'config_dir': config_dir})
     return Node(package='wind_shaper', executable=name, name=name, output='screen',
-                emulate_tty=True, parameters=parameters)
+                emulate_tty=True, parameters=parameters,
+                namespace=LaunchConfiguration('namespace'))
 
 
 def generate_launch_description():
@@ -44,6 +46,10 @@ def generate_launch_description():
         DeclareLaunchArgument('config_dir', default_value=default_config,
                               description='folder with <node>.yaml per node and the core YAML '
                                           'files (tunnel, shaping, model, sim)'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='ROS namespace of every node (the graph\'s names are '
+                                          'relative: /NS/wind_shaper/...); as wind-shaper '
+                                          '--namespace NS up'),
         DeclareLaunchArgument('rig_delay', default_value='3.0',
                               description='with sim:=true, start the rig drivers this many seconds '
                                           'after sim_tunnel [s]'),

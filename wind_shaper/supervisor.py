@@ -81,9 +81,12 @@ def format_value(value) -> str:
 
 def node_command(node: str, params_file: Path | None = None,
                  overrides: Mapping[str, object] | None = None,
-                 python: str = sys.executable) -> list[str]:
-    """``python -m wind_shaper.nodes.<node> --ros-args [--params-file F] [-p k:=v ...]``."""
+                 python: str = sys.executable, namespace: str = '/') -> list[str]:
+    """``python -m wind_shaper.nodes.<node> --ros-args [-r __ns:=NS] [--params-file F]
+    [-p k:=v ...]``."""
     argv = [python, '-m', f'wind_shaper.nodes.{node}', '--ros-args']
+    if namespace not in ('', '/'):
+        argv += ['-r', f'__ns:={namespace}']
     if params_file is not None:
         argv += ['--params-file', str(params_file)]
     for key, value in (overrides or {}).items():
@@ -113,12 +116,13 @@ def _declared(params_file: Path, node: str) -> dict[str, object]:
 
 def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | None = None,
                overrides: Mapping[str, Mapping[str, object]] | None = None,
-               python: str = sys.executable) -> list[NodeSpec]:
+               python: str = sys.executable, namespace: str = '/') -> list[NodeSpec]:
     """One ``NodeSpec`` per node, in order. Parameters come from ``config_dir/<node>.yaml``, or
     from ``fallback_dir/<node>.yaml`` (the shipped one) when the folder has none. Nodes whose
     file declares ``config_dir`` get it pointed at ``config_dir``; ``overrides`` {node: {name:
     value}} are added last (they win), typed like the file's value (an integer for a float
-    parameter becomes a float). An override of an undeclared parameter is refused."""
+    parameter becomes a float). An override of an undeclared parameter is refused. namespace:
+    the ROS namespace every node starts in (its relative names resolve under it)."""
     config_dir = Path(config_dir).resolve()
     overrides = {k: dict(v) for k, v in (overrides or {}).items()}
     unknown = set(overrides) - set(nodes)
@@ -144,7 +148,8 @@ def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | N
                 raise GraphError(f'{node} has no parameter {key!r} (see {path}); its parameters '
                                  f'are {", ".join(sorted(declared))}')
             params[key] = _coerce(value, declared[key])
-        specs.append(NodeSpec(node, tuple(node_command(node, path, params, python)), path, note))
+        specs.append(NodeSpec(node, tuple(node_command(node, path, params, python, namespace)),
+                              path, note))
     return specs
 
 

@@ -18,6 +18,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 import rclpy
 import rclpy.time
 from rclpy.duration import Duration
+from wind_shaper.bag import topics as bt
 from wind_shaper_msgs.msg import FanCommand, IterationStatus
 
 from wind_shaper.ros import names, qos
@@ -32,10 +33,10 @@ def main(argv):
     end = time.monotonic() + lifetime_s
     rclpy.init()
     node = rclpy.create_node('sweep_publisher')
-    force = node.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
-    pose = node.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
-    status = node.create_publisher(IterationStatus, names.STATUS, qos.LATCHED)
-    command = node.create_publisher(FanCommand, names.FAN_COMMAND, qos.LATCHED)
+    force = node.create_publisher(WrenchStamped, bt.FORCE, qos.STREAM)
+    pose = node.create_publisher(PoseStamped, bt.PLATE_POSE, qos.STREAM)
+    status = node.create_publisher(IterationStatus, bt.STATUS, qos.LATCHED)
+    command = node.create_publisher(FanCommand, bt.FAN_COMMAND, qos.LATCHED)
     clock = node.get_clock()
 
     def alive():

@@ -15,6 +15,7 @@ import yaml
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from wind_shaper.bag import topics as bt  # noqa: E402
 from wind_shaper_msgs.srv import EstimateField  # noqa: E402
 
 from wind_shaper.bag import BagReader, read_sweep_records, write_sweep_bag  # noqa: E402
@@ -43,7 +44,7 @@ def output(process):
 @pytest.mark.timeout(90)
 def test_a_live_sweep_recorded_by_another_process_survives_sigint_whole(ros_process, tmp_path):
     bag_path = tmp_path / 'live'
-    topics = [names.FORCE, names.PLATE_POSE, names.STATUS, names.FAN_COMMAND]
+    topics = [bt.FORCE, bt.PLATE_POSE, bt.STATUS, bt.FAN_COMMAND]
     recorder = ros_process(BIN / 'wind-shaper', 'record', '--out', bag_path, '--topics', *topics)
     publisher = ros_process(HERE / 'sweep_publisher.py', SWEEP_S, LIFETIME_S)
     code = wait_for_exit(publisher, DISCOVERY_S + SWEEP_S + 15)
@@ -57,9 +58,9 @@ def test_a_live_sweep_recorded_by_another_process_survives_sigint_whole(ros_proc
     n_force = int(SWEEP_S * 1000)
     with BagReader(bag_path) as bag:
         counts = {name: info.count for name, info in bag.topics.items()}
-        forces = [(t, m) for _, t, m in bag.decoded([names.FORCE])]
-    assert counts == {names.FORCE: n_force, names.PLATE_POSE: n_force // 10, names.STATUS: 3,
-                      names.FAN_COMMAND: 1}, output(recorder)
+        forces = [(t, m) for _, t, m in bag.decoded([bt.FORCE])]
+    assert counts == {bt.FORCE: n_force, bt.PLATE_POSE: n_force // 10, bt.STATUS: 3,
+                      bt.FAN_COMMAND: 1}, output(recorder)
     # nothing lost or reordered at 1 kHz between processes; each message received after its
     # sample time, and soon after it was published (a busy publisher may fall behind its 1 ms
     # schedule; that is its delay, not the recorder's)
@@ -151,16 +152,16 @@ def test_a_replayed_sweep_bag_gives_the_field_estimate_the_core_computes_offline
     player = None
     try:
         diagnostics = []
-        node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, diagnostics.append, 10)
+        node.create_subscription(DiagnosticArray, bt.DIAGNOSTICS, diagnostics.append, 10)
         begin = node.create_client(Trigger, names.BEGIN_SWEEP)
         estimate = node.create_client(EstimateField, names.ESTIMATE_FIELD)
         assert begin.wait_for_service(timeout_sec=WAIT_S) and estimate.wait_for_service(
             timeout_sec=WAIT_S), f'field_estimator offers no services:\n{output(estimator)}'
-        player = Player(bag_path, topics=[names.FORCE, names.PLATE_POSE], context=ros_context,
+        player = Player(bag_path, topics=[bt.FORCE, bt.PLATE_POSE], context=ros_context,
                         wait_for_subscribers_s=WAIT_S)
         assert call(node, begin, Trigger.Request()).success
         stats = player.play()  # real time
-        assert stats.published[names.FORCE] == record.n_force
+        assert stats.published[bt.FORCE] == record.n_force
         # the node takes what DDS delivered at its own pace: wait until it has everything
         want = (record.n_force, record.n_pose)
         assert spin_until(node, lambda: buffered(diagnostics) == want), \

@@ -10,6 +10,7 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 from rclpy.experimental import EventsExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from wind_shaper.bag import topics as bt  # noqa: E402
 from wind_shaper_msgs.msg import FanCommand  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
 
@@ -114,10 +115,10 @@ def test_replay_delivers_every_message_in_order_at_the_bags_rate(ros_context, sw
 def test_restamp_moves_header_stamps_to_the_replay_time_and_keeps_their_spacing(
         ros_context, sweep_bag):
     with BagReader(sweep_bag) as bag:
-        topics = {names.PLATE_POSE: bag.topics[names.PLATE_POSE]}
-        recorded = [msg.header.stamp for _, _, msg in bag.decoded([names.PLATE_POSE])]
+        topics = {bt.PLATE_POSE: bag.topics[bt.PLATE_POSE]}
+        recorded = [msg.header.stamp for _, _, msg in bag.decoded([bt.PLATE_POSE])]
     listener = Listener(ros_context, topics)
-    player = Player(sweep_bag, rate=8.0, topics=[names.PLATE_POSE], restamp=True,
+    player = Player(sweep_bag, rate=8.0, topics=[bt.PLATE_POSE], restamp=True,
                     context=ros_context, wait_for_subscribers_s=WAIT_S)
     try:
         started = time.time()
@@ -137,8 +138,8 @@ def test_restamp_moves_header_stamps_to_the_replay_time_and_keeps_their_spacing(
 
 def test_loop_repeats_until_stopped(ros_context, sweep_bag):
     with BagReader(sweep_bag) as bag:
-        n_status = bag.topics[names.STATUS].count
-    player = Player(sweep_bag, rate=20.0, topics=[names.STATUS], loop=True, context=ros_context)
+        n_status = bag.topics[bt.STATUS].count
+    player = Player(sweep_bag, rate=20.0, topics=[bt.STATUS], loop=True, context=ros_context)
     passes = []
 
     def on_pass(n):
@@ -149,7 +150,7 @@ def test_loop_repeats_until_stopped(ros_context, sweep_bag):
         stats = player.play(on_pass=on_pass)
     finally:
         player.destroy()
-    assert stats.passes == 3 and stats.published == {names.STATUS: 3 * n_status}
+    assert stats.passes == 3 and stats.published == {bt.STATUS: 3 * n_status}
 
 
 def test_player_refuses_topics_the_bag_does_not_have(ros_context, sweep_bag):
@@ -162,11 +163,11 @@ def test_player_refuses_topics_the_bag_does_not_have(ros_context, sweep_bag):
 @pytest.mark.slow
 def test_recorder_keeps_live_messages_byte_for_byte_including_a_latched_one(ros_context, tmp_path):
     node = rclpy.create_node('bag_record_talker', context=ros_context)
-    latched = node.create_publisher(FanCommand, names.FAN_COMMAND, qos.LATCHED)
-    force = node.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+    latched = node.create_publisher(FanCommand, bt.FAN_COMMAND, qos.LATCHED)
+    force = node.create_publisher(WrenchStamped, bt.FORCE, qos.STREAM)
     first = FanCommand(names=['fan_00'], pwm=[0.25])
     latched.publish(first)  # before the recorder exists: only transient local gets it
-    recorder = Recorder(tmp_path / 'rec', [names.FAN_COMMAND, names.FORCE, names.FIELD],
+    recorder = Recorder(tmp_path / 'rec', [bt.FAN_COMMAND, bt.FORCE, bt.FIELD],
                         context=ros_context, discovery_period_s=0.05)
     thread = threading.Thread(target=recorder.record, daemon=True)
     thread.start()
@@ -182,24 +183,24 @@ def test_recorder_keeps_live_messages_byte_for_byte_including_a_latched_one(ros_
             sent.append(msg)
             time.sleep(0.001)
         latched.publish(FanCommand(names=['fan_00'], pwm=[0.75]))
-        assert wait_until(lambda: recorder.stats.counts.get(names.FORCE, 0) == len(sent)
-                          and recorder.stats.counts.get(names.FAN_COMMAND, 0) == 2)
+        assert wait_until(lambda: recorder.stats.counts.get(bt.FORCE, 0) == len(sent)
+                          and recorder.stats.counts.get(bt.FAN_COMMAND, 0) == 2)
     finally:
         recorder.stop()
         thread.join(timeout=WAIT_S)
         node.destroy_node()
     assert not thread.is_alive()
     stats = recorder.stats
-    assert stats.missing == [names.FIELD] and stats.counts[names.FORCE] == len(sent)
+    assert stats.missing == [bt.FIELD] and stats.counts[bt.FORCE] == len(sent)
     with BagReader(tmp_path / 'rec') as bag:
         topics = bag.topics
-        rows = list(bag.decoded([names.FORCE, names.FAN_COMMAND]))
-    assert topics[names.FORCE].msgtype == 'geometry_msgs/msg/WrenchStamped'
-    offered = topics[names.FAN_COMMAND].qos[0]  # as DDS reports it (no history/depth), like ros2 bag
+        rows = list(bag.decoded([bt.FORCE, bt.FAN_COMMAND]))
+    assert topics[bt.FORCE].msgtype == 'geometry_msgs/msg/WrenchStamped'
+    offered = topics[bt.FAN_COMMAND].qos[0]  # as DDS reports it (no history/depth), like ros2 bag
     assert (offered.durability.name, offered.reliability.name) == ('TRANSIENT_LOCAL', 'RELIABLE')
-    assert topics[names.FORCE].qos[0].durability.name == 'VOLATILE'
-    assert [m.pwm[0] for t, _, m in rows if t == names.FAN_COMMAND] == [0.25, 0.75]
-    forces = [m for t, _, m in rows if t == names.FORCE]
+    assert topics[bt.FORCE].qos[0].durability.name == 'VOLATILE'
+    assert [m.pwm[0] for t, _, m in rows if t == bt.FAN_COMMAND] == [0.25, 0.75]
+    forces = [m for t, _, m in rows if t == bt.FORCE]
     assert [m.header.stamp.sec for m in forces] == list(range(300))
     assert [m.wrench.force.z for m in forces] == [0.01 * k for k in range(300)]
     times = [t for _, t, _ in rows]
@@ -207,9 +208,9 @@ def test_recorder_keeps_live_messages_byte_for_byte_including_a_latched_one(ros_
 
 
 def test_a_recorder_stopped_at_once_leaves_a_readable_empty_bag(ros_context, tmp_path):
-    recorder = Recorder(tmp_path / 'empty', [names.FORCE], context=ros_context)
+    recorder = Recorder(tmp_path / 'empty', [bt.FORCE], context=ros_context)
     stats = recorder.record(duration_s=0.2)
-    assert stats.total == 0 and stats.missing == [names.FORCE]
+    assert stats.total == 0 and stats.missing == [bt.FORCE]
     with BagReader(tmp_path / 'empty') as bag:
         assert bag.message_count == 0
     with pytest.raises(Exception, match='no messages on /wind_shaper/force'):

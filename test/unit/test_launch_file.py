@@ -87,3 +87,18 @@ def test_up_and_the_launch_file_give_every_node_the_same_parameters(tmp_path):
         assert given == expected, f'{spec.name}: up passes {given}, the launch file {expected}'
     order = [s.name for s in specs]
     assert order.index(names.SIM_TUNNEL) < min(order.index(n) for n in c['RIG_DRIVERS'])
+
+
+def test_up_and_the_launch_file_put_every_node_in_the_same_namespace():
+    """`wind-shaper --namespace tunnel_b up` remaps every node's namespace, as the launch file's
+    namespace:=tunnel_b does for every Node it starts; without one, neither remaps."""
+    from wind_shaper.supervisor import plan_graph
+    text = LAUNCH.read_text()
+    assert "namespace=LaunchConfiguration('namespace')" in text
+    assert "DeclareLaunchArgument('namespace', default_value=''" in text
+    nodes = [names.SIM_TUNNEL, *names.GRAPH_NODES]
+    for spec in plan_graph(nodes, ROOT / 'config', namespace='/tunnel_b'):
+        argv = list(spec.argv)
+        assert argv[argv.index('-r') + 1] == '__ns:=/tunnel_b', spec.name
+    for spec in plan_graph(nodes, ROOT / 'config'):
+        assert '-r' not in spec.argv

@@ -20,7 +20,8 @@ from typing import Callable, Iterable
 
 from .errors import BagContentError
 from .storage import BagReader
-from .topics import KNOWN_TOPICS, STREAM, TopicQos
+from ..ros import names
+from .topics import KNOWN_TOPICS, STREAM, TopicQos, bag_namespace, canonical, in_namespace
 from .types import has_header, typestore
 
 #: Volatile topics are published with at least this history depth, so a burst at a high
@@ -115,7 +116,11 @@ class Player:
         with BagReader(self.bag_path) as bag:
             infos = bag.topics
             self.duration_s = bag.duration_s
-        wanted = list(infos) if topics is None else list(topics)
+        # a graph name (wind_shaper/force) means the bag's topic of that name, in whatever
+        # namespace it was recorded
+        ns = bag_namespace(infos)
+        wanted = (list(infos) if topics is None
+                  else [t if t.startswith('/') else in_namespace(names.resolve(t, '/'), ns) for t in topics])
         unknown = [t for t in wanted if t not in infos]
         if unknown:
             raise BagContentError(f'bag {self.bag_path} has no topic {", ".join(unknown)}; it has '
@@ -133,7 +138,7 @@ class Player:
             for topic, info in self.topics.items():
                 cls = message_class(info.msgtype)
                 qos = (TopicQos.from_rosbags(info.qos[0]) if info.qos
-                       else KNOWN_TOPICS[topic].qos if topic in KNOWN_TOPICS else STREAM)
+                       else KNOWN_TOPICS[canonical(topic)].qos if canonical(topic) in KNOWN_TOPICS else STREAM)
                 self._publishers[topic] = self._node.create_publisher(
                     cls, topic, rclpy_qos(qos, MIN_STREAM_DEPTH))
         except Exception:

@@ -18,7 +18,8 @@ from typing import Iterable
 
 from .player import message_class, rclpy_qos
 from .storage import BagWriter
-from .topics import SWEEP_TOPICS, TopicQos, qos_time
+from ..ros import names
+from .topics import SWEEP_TOPICS, TopicQos, in_namespace, qos_time
 from .types import typestore
 
 
@@ -69,7 +70,8 @@ class RecordStats:
 
 
 class Recorder:
-    """Records ``topics`` (default: the sweep topics, ``SWEEP_TOPICS``) into a new bag at
+    """Records ``topics`` (default: the sweep topics, ``SWEEP_TOPICS``, under the namespace in
+    ``$WIND_SHAPER_NAMESPACE``) into a new bag at
     ``out``. storage: 'mcap' or 'sqlite3'; context: the rclpy context (None: the default one,
     already initialised); discovery_period_s [s]: how often the graph is polled for new
     publishers."""
@@ -78,7 +80,10 @@ class Recorder:
                  context=None, discovery_period_s: float = 0.2, node_name: str = 'wind_shaper_recorder'):
         import rclpy
         from rclpy.experimental import EventsExecutor
-        self.topics = list(dict.fromkeys(topics if topics is not None else SWEEP_TOPICS))
+        if topics is None:   # the sweep topics, in the command line's namespace
+            ns = names.namespace_from_env()
+            topics = [in_namespace(t, ns) for t in SWEEP_TOPICS]
+        self.topics = list(dict.fromkeys(topics))
         if not self.topics:
             raise ValueError('give at least one topic to record')
         self._store = typestore()
@@ -91,6 +96,8 @@ class Recorder:
         self._node = self._executor = None
         try:
             self._node = rclpy.create_node(node_name, context=context)
+            # a graph name (wind_shaper/force) is recorded under its absolute name
+            self.topics = list(dict.fromkeys(self._node.resolve_topic_name(t) for t in self.topics))
             self._clock = self._node.get_clock()
             # The events executor keeps up with several kHz of raw messages (the default
             # executor lost messages above ~2 kHz in our runs).

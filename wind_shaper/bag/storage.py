@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Iterable, Iterator
 
 from .errors import BagContentError, BagNotFoundError, BagReadError, BagWriteError
-from .topics import KNOWN_TOPICS, TopicQos
+from .topics import KNOWN_TOPICS, TopicQos, canonical
 from .types import require_type, typestore
 
 STORAGE_IDS = ('mcap', 'sqlite3')
@@ -95,7 +95,7 @@ class BagWriter:
             raise BagWriteError(f'bag {self.path} is not open: call open() first')
         if topic in self._connections:
             raise BagWriteError(f'topic {topic} was already added to bag {self.path}')
-        spec = KNOWN_TOPICS.get(topic)
+        spec = KNOWN_TOPICS.get(canonical(topic))
         if msgtype is None:
             if spec is None:
                 raise BagWriteError(f'topic {topic} is not a graph topic: give its message type')

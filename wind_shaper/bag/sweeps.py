@@ -24,6 +24,7 @@ from ..core.errors import SweepError
 from ..core.tunnel import Sweep
 from ..ros import names
 from . import segments as seg
+from . import topics as bt
 from . import types
 from .errors import BagContentError, BagWriteError
 from .storage import BagReader, BagWriter
@@ -56,8 +57,8 @@ def _stamp_s(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
-                       pose_topic: str = names.PLATE_POSE, segment_by: str = 'auto',
+def read_sweep_records(bag_path: Path | str, *, force_topic: str = bt.FORCE,
+                       pose_topic: str = bt.PLATE_POSE, segment_by: str = 'auto',
                        include_incomplete: bool = True, strict: bool = False) -> list[SweepRecord]:
     """Every sweep in the bag at ``bag_path``, in time order, with its bookkeeping.
 
@@ -72,25 +73,29 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
     if segment_by not in ('auto', 'status', 'commands', 'whole'):
         raise ValueError(f"segment_by must be 'auto', 'status', 'commands' or 'whole'; got {segment_by!r}")
     with BagReader(bag_path) as bag:
-        topics = bag.topics
-        if pose_topic not in topics and pose_topic == names.PLATE_POSE and names.MOCAP_POSE in topics:
+        # a graph started in a namespace records /<ns>/wind_shaper/...: read those under the
+        # root names
+        ns = bt.bag_namespace(bag.topics)
+        topics = {bt.canonical(t): info for t, info in bag.topics.items()}
+        if pose_topic not in topics and pose_topic == bt.PLATE_POSE and bt.MOCAP_POSE in topics:
             raise BagContentError(
-                f'bag {bag.path} has no {names.PLATE_POSE} (plate centre, tunnel frame) but has '
-                f'{names.MOCAP_POSE} (raw mocap frame): record the mocap_relay output too, or pass '
-                f'pose_topic={names.MOCAP_POSE!r} to pair force with mocap-frame positions')
-        bag.require_topics([force_topic, pose_topic], 'to rebuild sweeps (force and plate pose)')
+                f'bag {bag.path} has no {bt.PLATE_POSE} (plate centre, tunnel frame) but has '
+                f'{bt.MOCAP_POSE} (raw mocap frame): record the mocap_relay output too, or pass '
+                f'pose_topic={bt.MOCAP_POSE!r} to pair force with mocap-frame positions')
+        bag.require_topics([bt.in_namespace(t, ns) for t in (force_topic, pose_topic)],
+                           'to rebuild sweeps (force and plate pose)')
         for topic, wanted in ((force_topic, types.WRENCH_STAMPED), (pose_topic, types.POSE_STAMPED)):
             if topics[topic].msgtype != wanted:
                 raise BagContentError(f'bag {bag.path}: {topic} has type {topics[topic].msgtype}, '
                                       f'expected {wanted}')
-        command_topic = next((t for t in (names.FAN_COMMAND, names.FAN_APPLIED)
+        command_topic = next((t for t in (bt.FAN_COMMAND, bt.FAN_APPLIED)
                               if topics.get(t) and topics[t].count
                               and topics[t].msgtype == types.FAN_COMMAND), None)
-        status_topic = (names.STATUS if topics.get(names.STATUS) and topics[names.STATUS].count
-                        and topics[names.STATUS].msgtype == types.ITERATION_STATUS else None)
-        rows_topic = (names.EXPERIMENT_SWEEPS if topics.get(names.EXPERIMENT_SWEEPS)
-                      and topics[names.EXPERIMENT_SWEEPS].count
-                      and topics[names.EXPERIMENT_SWEEPS].msgtype == types.SWEEP_SAMPLES else None)
+        status_topic = (bt.STATUS if topics.get(bt.STATUS) and topics[bt.STATUS].count
+                        and topics[bt.STATUS].msgtype == types.ITERATION_STATUS else None)
+        rows_topic = (bt.EXPERIMENT_SWEEPS if topics.get(bt.EXPERIMENT_SWEEPS)
+                      and topics[bt.EXPERIMENT_SWEEPS].count
+                      and topics[bt.EXPERIMENT_SWEEPS].msgtype == types.SWEEP_SAMPLES else None)
         rows: list[SweepRecord] = []
 
         force_recv, force_t, force_z = [], [], []
@@ -99,7 +104,8 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
         commands: list[seg.CommandEvent] = []
         wanted = [force_topic, pose_topic] + [t for t in (status_topic, command_topic, rows_topic) if t]
         first_ns = last_ns = None
-        for topic, t_ns, msg in bag.decoded(wanted):
+        for topic, t_ns, msg in bag.decoded([bt.in_namespace(t, ns) for t in wanted]):
+            topic = bt.canonical(topic)
             first_ns = t_ns if first_ns is None else first_ns
             last_ns = t_ns
             if topic == force_topic:
@@ -126,7 +132,7 @@ def read_sweep_records(bag_path: Path | str, *, force_topic: str = names.FORCE,
         parts = []
     elif mode == 'status':
         if not statuses:
-            raise BagContentError(f'bag {bag_path} has no {names.STATUS} messages to find the sweeps '
+            raise BagContentError(f'bag {bag_path} has no {bt.STATUS} messages to find the sweeps '
                                   f"by: use segment_by='commands' or 'whole'")
         parts = seg.segments_from_status(statuses, last_ns, commands)
     elif mode == 'commands':
@@ -235,7 +241,7 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
     rest_xy = np.zeros(2)
 
     def status(t_ns, k, state, progress=0.0, samples=0, pwm=()):
-        events.append((t_ns, 0, names.STATUS, dict(iteration=k, state=state, progress=progress,
+        events.append((t_ns, 0, bt.STATUS, dict(iteration=k, state=state, progress=progress,
                                                    samples=samples, pwm=tuple(pwm))))
 
     def rest(start_ns, end_ns):
@@ -253,8 +259,8 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
         if with_status:
             status(start, k, 'commanding', pwm=pwm)
         if with_commands:
-            events.append((start, 1, names.FAN_COMMAND, pwm))
-            events.append((start + 50_000_000, 1, names.FAN_APPLIED, pwm))
+            events.append((start, 1, bt.FAN_COMMAND, pwm))
+            events.append((start + 50_000_000, 1, bt.FAN_APPLIED, pwm))
         sweep_start = start + int(round(settle_s * NS))
         rest(clock, sweep_start)
         times = np.asarray(sweep.times, float)
@@ -265,7 +271,7 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
         spans.append(_Span(sweep_start, end, pose_ns, np.asarray(sweep.forces, float)))
         for t_ns, xy in zip(pose_ns, np.asarray(sweep.positions, float)):
             events.append((int(t_ns) + latency_ns, 2, 'pose', (int(t_ns), xy)))
-        field = (end + 50_000_000, 3, names.FIELD, (k, estimates[index], pwm, len(rel))) \
+        field = (end + 50_000_000, 3, bt.FIELD, (k, estimates[index], pwm, len(rel))) \
             if estimates is not None else None
         if with_status:
             status(sweep_start, k, 'sweeping', 0.0, 0, pwm)
@@ -285,11 +291,11 @@ def write_sweep_bag(path: Path | str, sweeps: Sequence[Sweep], *, fan_names: Seq
 
     with BagWriter(path, storage=storage, custom_data={'wind_shaper': 'write_sweep_bag'}) as bag:
         for topic in SWEEP_TOPICS:
-            if topic == names.STATUS and not with_status:
+            if topic == bt.STATUS and not with_status:
                 continue
-            if topic in (names.FAN_COMMAND, names.FAN_APPLIED) and not with_commands:
+            if topic in (bt.FAN_COMMAND, bt.FAN_APPLIED) and not with_commands:
                 continue
-            if topic == names.FIELD and estimates is None:
+            if topic == bt.FIELD and estimates is None:
                 continue
             bag.add_topic(topic)
         ev = sorted(events, key=lambda e: (e[0], e[1]))
@@ -355,7 +361,7 @@ def _write_merged(bag: BagWriter, events, force_events, fan_names, mocap_from_tu
             msg = WrenchStamped(header=header(t_ns, names.SENSOR_FRAME),
                                 wrench=Wrench(force=Vector3(x=0.0, y=0.0, z=float(f_values[fi])),
                                               torque=zero))
-            bag.write(names.FORCE, t_ns, msg)
+            bag.write(bt.FORCE, t_ns, msg)
             fi += 1
 
     for t_ns, _, topic, payload in events:
@@ -363,27 +369,27 @@ def _write_merged(bag: BagWriter, events, force_events, fan_names, mocap_from_tu
         if topic == 'pose':
             stamp_ns, xy = payload
             p = np.array([xy[0], xy[1], 0.0])
-            bag.write(names.PLATE_POSE, t_ns, PoseStamped(
+            bag.write(bt.PLATE_POSE, t_ns, PoseStamped(
                 header=header(stamp_ns, names.TUNNEL_FRAME),
                 pose=Pose(position=Point(x=float(p[0]), y=float(p[1]), z=0.0),
                           orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))))
             m = mocap_from_tunnel.apply(p)
-            bag.write(names.MOCAP_POSE, t_ns, PoseStamped(
+            bag.write(bt.MOCAP_POSE, t_ns, PoseStamped(
                 header=header(stamp_ns, 'mocap'),
                 pose=Pose(position=Point(x=float(m[0]), y=float(m[1]), z=float(m[2])),
                           orientation=Quaternion(x=float(q_mocap[0]), y=float(q_mocap[1]),
                                                  z=float(q_mocap[2]), w=float(q_mocap[3])))))
-        elif topic == names.STATUS:
+        elif topic == bt.STATUS:
             bag.write(topic, t_ns, T[types.ITERATION_STATUS](
                 header=header(t_ns), iteration=payload['iteration'], state=payload['state'],
                 progress=float(payload['progress']), samples=int(payload['samples']),
                 coverage=float('nan'), max_std=float('nan'), message='',
                 target='', fan_names=list(fan_names) if payload['pwm'] else [],
                 pwm=np.asarray(payload['pwm'], dtype=np.float64), rmse=float('nan'), run_folder=''))
-        elif topic in (names.FAN_COMMAND, names.FAN_APPLIED):
+        elif topic in (bt.FAN_COMMAND, bt.FAN_APPLIED):
             bag.write(topic, t_ns, T[types.FAN_COMMAND](
                 header=header(t_ns), names=list(fan_names), pwm=np.asarray(payload, dtype=np.float64)))
-        elif topic == names.FIELD:
+        elif topic == bt.FIELD:
             k, est, pwm, n_samples = payload
             kp = np.asarray(est.key_points if key_points is None else key_points, float)
             bag.write(topic, t_ns, T[types.FIELD_ESTIMATE](

@@ -66,21 +66,60 @@ class TopicSpec:
     qos: TopicQos
 
 
+# The graph's topics as a bag names them: absolute, resolved in the root namespace (a graph
+# started in a namespace records them under it; ``bag_namespace`` finds it back).
+FORCE, PLATE_POSE, MOCAP_POSE = (names.resolve(n, '/') for n in (names.FORCE, names.PLATE_POSE,
+                                                                    names.MOCAP_POSE))
+FAN_COMMAND, FAN_APPLIED, FIELD = (names.resolve(n, '/') for n in (names.FAN_COMMAND, names.FAN_APPLIED,
+                                                                      names.FIELD))
+STATUS, EXPERIMENT_STATUS, EXPERIMENT_SWEEPS = (names.resolve(n, '/') for n in (
+    names.STATUS, names.EXPERIMENT_STATUS, names.EXPERIMENT_SWEEPS))
+DIAGNOSTICS = names.DIAGNOSTICS
+
 #: The topics of a sweep, in the order a bag lists them.
 SWEEP_TOPICS: dict[str, TopicSpec] = {spec.name: spec for spec in (
-    TopicSpec(names.FORCE, types.WRENCH_STAMPED, STREAM),
-    TopicSpec(names.PLATE_POSE, types.POSE_STAMPED, STREAM),
-    TopicSpec(names.MOCAP_POSE, types.POSE_STAMPED, STREAM),
-    TopicSpec(names.FAN_COMMAND, types.FAN_COMMAND, LATCHED),
-    TopicSpec(names.FAN_APPLIED, types.FAN_COMMAND, LATCHED),
-    TopicSpec(names.FIELD, types.FIELD_ESTIMATE, LATCHED),
-    TopicSpec(names.STATUS, types.ITERATION_STATUS, LATCHED),
-    TopicSpec(names.EXPERIMENT_STATUS, types.EXPERIMENT_STATUS, LATCHED),
-    TopicSpec(names.EXPERIMENT_SWEEPS, types.SWEEP_SAMPLES, COMMAND),
+    TopicSpec(FORCE, types.WRENCH_STAMPED, STREAM),
+    TopicSpec(PLATE_POSE, types.POSE_STAMPED, STREAM),
+    TopicSpec(MOCAP_POSE, types.POSE_STAMPED, STREAM),
+    TopicSpec(FAN_COMMAND, types.FAN_COMMAND, LATCHED),
+    TopicSpec(FAN_APPLIED, types.FAN_COMMAND, LATCHED),
+    TopicSpec(FIELD, types.FIELD_ESTIMATE, LATCHED),
+    TopicSpec(STATUS, types.ITERATION_STATUS, LATCHED),
+    TopicSpec(EXPERIMENT_STATUS, types.EXPERIMENT_STATUS, LATCHED),
+    TopicSpec(EXPERIMENT_SWEEPS, types.SWEEP_SAMPLES, COMMAND),
 )}
 
 #: Other graph topics the recorder and player know the type of.
 KNOWN_TOPICS: dict[str, TopicSpec] = {
     **SWEEP_TOPICS,
-    names.DIAGNOSTICS: TopicSpec(names.DIAGNOSTICS, types.DIAGNOSTIC_ARRAY, COMMAND),
+    DIAGNOSTICS: TopicSpec(DIAGNOSTICS, types.DIAGNOSTIC_ARRAY, COMMAND),
 }
+
+_GRAPH_PREFIX = '/' + names.FORCE.split('/')[0] + '/'   # '/wind_shaper/'
+
+
+def in_namespace(topic: str, namespace: str = '/') -> str:
+    """A graph topic as a bag names it (``/wind_shaper/...``) for a graph in ``namespace``
+    (``/tunnel_b/wind_shaper/...``); other topics (the raw mocap, /diagnostics) unchanged."""
+    ns = names.check_namespace(namespace)
+    if ns == '/' or not topic.startswith(_GRAPH_PREFIX):
+        return topic
+    return ns + topic
+
+
+def bag_namespace(topics) -> str:
+    """The namespace a bag's graph topics were recorded in: '/' for ``/wind_shaper/...``,
+    ``/tunnel_b`` for ``/tunnel_b/wind_shaper/...`` (the first graph topic found decides)."""
+    for topic in topics:
+        at = topic.find(_GRAPH_PREFIX)
+        if at > 0 and topic[at:] in SWEEP_TOPICS:
+            return topic[:at]
+        if at == 0 and topic in SWEEP_TOPICS:
+            return '/'
+    return '/'
+
+
+def canonical(topic: str) -> str:
+    """A bag topic's name in the root namespace (the key of ``KNOWN_TOPICS``)."""
+    at = topic.find(_GRAPH_PREFIX)
+    return topic[at:] if at > 0 and topic[at:] in KNOWN_TOPICS else topic

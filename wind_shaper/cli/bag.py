@@ -29,9 +29,10 @@ def _stop_on_signals(worker) -> None:
 
 def _cmd_record(args) -> int:
     from ..bag.recorder import Recorder
-    from ..bag.topics import SWEEP_TOPICS
+    from ..bag.topics import SWEEP_TOPICS, in_namespace
+    from ..ros.names import namespace_from_env
     out = args.out or Path('bags') / time.strftime('sweeps-%Y%m%d-%H%M%S')
-    topics = args.topics or list(SWEEP_TOPICS)
+    topics = args.topics or [in_namespace(t, namespace_from_env()) for t in SWEEP_TOPICS]
     rclpy = _init_ros()
     try:
         recorder = Recorder(out, topics, storage=args.storage)

@@ -27,11 +27,11 @@ from pathlib import Path
 from ..ros import names
 from .service import STALE_STATUS_S, _not_running, _Session, _wait_arg
 
-ROS2_EQUIVALENT = (f'ros2 service call {names.COLLECT} wind_shaper_msgs/srv/Collect '
+ROS2_EQUIVALENT = (f'ros2 service call /{names.COLLECT} wind_shaper_msgs/srv/Collect '
                    '"{name: exp1, fan_names: [...], commands: [...]}"')
 RUNNING = ('commanding', 'sweeping', 'checking')
 #: Topics the bag needs for `--data` (the rest are recorded when they have publishers).
-BAG_NEEDS = (names.FORCE, names.PLATE_POSE, names.EXPERIMENT_SWEEPS)
+BAG_NEEDS = (names.FORCE, names.PLATE_POSE, names.EXPERIMENT_SWEEPS)   # resolved when used
 
 
 def _design(args):
@@ -130,7 +130,7 @@ def _cmd_collect(args) -> int:
     with _Session() as session:
         client = session.node.create_client(Collect, names.COLLECT)
         if not session.wait_for_service(client, args.wait):
-            return _not_running(names.COLLECT, args.wait)
+            return _not_running(names.resolve(names.COLLECT), args.wait)
         latest = [None, 0.0]
 
         def keep(msg):
@@ -142,7 +142,7 @@ def _cmd_collect(args) -> int:
             if bag_path.exists():
                 bag_path = bag_path.with_name(f'{bag_path.name}-{time.strftime("%Y%m%d-%H%M%S")}')
             bag = _BagThread(bag_path)
-            missing = bag.wait_subscribed(BAG_NEEDS, args.wait)
+            missing = bag.wait_subscribed([names.resolve(t) for t in BAG_NEEDS], args.wait)
             if missing:
                 print(f'warning: no publisher of {", ".join(missing)} yet; the bag may lack them',
                       file=sys.stderr)

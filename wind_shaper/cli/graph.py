@@ -80,14 +80,33 @@ def register(subparsers) -> None:
                    help='on stop, wait this long after SIGINT before SIGKILL [s] (default 5)')
     p.add_argument('--log-dir', type=Path, default=None,
                    help='also write each node\'s output to DIR/<node>.log')
+    p.add_argument('--nodes', default=None, metavar='LIST',
+                   help='start only these nodes here (comma-separated, of fan_output, force_sensor, '
+                        'mocap_relay, field_estimator, coordinator; sim_tunnel comes with --sim): '
+                        'the graph split over hosts, each running `up --nodes ...` in the same '
+                        'ROS domain (and namespace)')
     p.set_defaults(func=_cmd_up)
+
+
+def _nodes(listed: str | None, sim: bool, names) -> list[str]:
+    """The nodes `up` starts here: all of the graph's, or the listed ones (ValueError names an
+    unknown one); sim_tunnel first with --sim."""
+    chosen = list(names.GRAPH_NODES)
+    if listed is not None:
+        wanted = [n.strip() for n in listed.split(',') if n.strip()]
+        unknown = [n for n in wanted if n not in names.GRAPH_NODES]
+        if unknown or not wanted:
+            raise ValueError(f'--nodes: unknown node(s) {unknown or listed!r}; choose among '
+                             f'{", ".join(names.GRAPH_NODES)} (sim_tunnel comes with --sim)')
+        chosen = [n for n in names.GRAPH_NODES if n in wanted]
+    return ([names.SIM_TUNNEL] if sim else []) + chosen
 
 
 # ---------------------------------------------------------------------------------- ROS side
 class _GraphClient:
     """The supervisor's own ROS participant: sees the graph, calls the iteration service."""
 
-    def __init__(self, env: dict):
+    def __init__(self, env: dict, namespace: str = '/'):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
@@ -96,18 +115,22 @@ class _GraphClient:
         domain = env.get('ROS_DOMAIN_ID')
         kwargs = {'domain_id': int(domain)} if domain and domain.isdigit() else {}
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO, **kwargs)
-        self.node = rclpy.create_node('wind_shaper_up', context=self.context)
+        self.namespace = namespace
+        self.node = rclpy.create_node('wind_shaper_up', context=self.context, namespace=namespace)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
     def visible(self) -> list[str]:
-        return [name for name, _ns in self.node.get_node_names_and_namespaces()]
+        """The nodes in the graph's namespace (another tunnel's nodes of the same names in the
+        same domain do not count)."""
+        return [name for name, ns in self.node.get_node_names_and_namespaces()
+                if ns == self.namespace]
 
     def sim_ready(self) -> list[str]:
         """['sim_tunnel'] once its sweep service is up (created after its sockets are open)."""
         from ..ros import names
         services = {name for name, _types in self.node.get_service_names_and_types()}
-        return [names.SIM_TUNNEL] if names.SWEEP in services else []
+        return [names.SIM_TUNNEL] if names.resolve(names.SWEEP, self.namespace) in services else []
 
     def run_iteration(self, target: str, timeout_s: float, keep_going, during):
         """Call run_iteration once; ``keep_going()`` False or ``during()`` raising ends the
@@ -124,7 +147,8 @@ class _GraphClient:
                 if not keep_going():
                     return None
                 if time.monotonic() > deadline:
-                    raise WindShaperError(f'{names.RUN_ITERATION} is not available after 30 s: '
+                    raise WindShaperError(f'{names.resolve(names.RUN_ITERATION, self.namespace)} is '
+                                          f'not available after 30 s: '
                                           f'is the coordinator running?')
             future = client.call_async(RunIteration.Request(target=target))
             deadline = time.monotonic() + timeout_s
@@ -136,7 +160,7 @@ class _GraphClient:
                     return None
                 if time.monotonic() > deadline:
                     future.cancel()
-                    raise WindShaperError(f'no answer from {names.RUN_ITERATION} within '
+                    raise WindShaperError(f'no answer from {names.resolve(names.RUN_ITERATION, self.namespace)} within '
                                           f'{timeout_s:g} s (--iteration-timeout)')
             return future.result()
         finally:
@@ -164,9 +188,11 @@ def _hint(env: dict, user_env: dict) -> str:
                      if env.get(k) and not user_env.get(k))
     prefix = added + ' ' if added else ''
     domain = (f' (same ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]})' if env.get('ROS_DOMAIN_ID') else '')
+    ns = env.get('WIND_SHAPER_NAMESPACE', '')
+    option = f'--namespace {ns} ' if ns not in ('', '/') else ''
     return (f'In a second terminal{domain}:\n'
-            f'    {prefix}wind-shaper iterate --target parabolic\n'
-            f'    {prefix}wind-shaper status\n'
+            f'    {prefix}wind-shaper {option}iterate --target parabolic\n'
+            f'    {prefix}wind-shaper {option}status\n'
             f'Ctrl-C here stops every node.')
 
 
@@ -188,8 +214,18 @@ def _cmd_up(args) -> int:
         print(f'wind-shaper up: {config_dir} has no tunnel.yaml: give the config folder with '
               f'--config', file=sys.stderr)
         return 2
-    nodes = ([names.SIM_TUNNEL] if args.sim else []) + list(names.GRAPH_NODES)
-    specs = plan_graph(nodes, config_dir, fallback_dir=shipped, overrides=_overrides(args))
+    namespace = names.namespace_from_env()
+    try:
+        nodes = _nodes(args.nodes, args.sim, names)
+    except ValueError as exc:
+        print(f'wind-shaper up: {exc}', file=sys.stderr)
+        return 2
+    if args.iterations is not None and names.COORDINATOR not in nodes:
+        print('wind-shaper up: --iterations needs the coordinator on this host: add it to --nodes',
+              file=sys.stderr)
+        return 2
+    specs = plan_graph(nodes, config_dir, fallback_dir=shipped, overrides=_overrides(args),
+                       namespace=namespace)
     user_env = dict(os.environ)
     env = graph_env()
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',) if k in env})
@@ -200,9 +236,10 @@ def _cmd_up(args) -> int:
     with StopSignals() as stop:
         try:
             sup.say(f'wind-shaper up: starting {", ".join(nodes)} (config {config_dir}'
-                    f'{", ROS_DOMAIN_ID " + env["ROS_DOMAIN_ID"] if env.get("ROS_DOMAIN_ID") else ""})')
+                    f'{", ROS_DOMAIN_ID " + env["ROS_DOMAIN_ID"] if env.get("ROS_DOMAIN_ID") else ""}'
+                    f'{", namespace " + namespace if namespace != "/" else ""})')
             t0 = time.monotonic()
-            client = _GraphClient(env)
+            client = _GraphClient(env, namespace)
             if args.sim:   # the rig first: the drivers then find its sockets open
                 sup.start([names.SIM_TUNNEL])
                 sup.wait_visible(client.sim_ready, args.startup_timeout, names=[names.SIM_TUNNEL],

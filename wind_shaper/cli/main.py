@@ -141,6 +141,11 @@ def _cmd_targets_template(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='wind-shaper', description=__doc__.split('\n')[0])
+    parser.add_argument('--namespace', default=None, metavar='NS',
+                        help='the ROS namespace of the node graph (default: $WIND_SHAPER_NAMESPACE, '
+                             'else /): `up` starts its nodes in it and every other command talks '
+                             'to the graph there, so two tunnels share a ROS domain; e.g. '
+                             '`wind-shaper --namespace tunnel_b up --sim`')
     sub = parser.add_subparsers(dest='command', required=True)
 
     p = sub.add_parser('shape', help='run the online-learning loop on the simulated tunnel (update '
@@ -218,7 +223,19 @@ _GRAPH_COMMANDS = ('wind_shaper.cli.graph', 'wind_shaper.cli.service', 'wind_sha
 
 
 def main(argv=None) -> int:
+    import os
+
+    from ..ros.names import NAMESPACE_ENV, check_namespace
     args = build_parser().parse_args(argv)
+    try:
+        ns = check_namespace(args.namespace if args.namespace is not None
+                             else os.environ.get(NAMESPACE_ENV, ''))
+    except ValueError as exc:
+        where = '--namespace' if args.namespace is not None else f'${NAMESPACE_ENV}'
+        print(f'wind-shaper: error: {where}: {exc}', file=sys.stderr)
+        return 2
+    if args.namespace is not None:   # every command, and the nodes `up` starts, read it there
+        os.environ[NAMESPACE_ENV] = ns
     try:
         return args.func(args)
     except WindShaperError as exc:

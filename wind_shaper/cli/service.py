@@ -19,7 +19,7 @@ import time
 
 from ..ros import names
 
-ROS2_EQUIVALENT = (f'ros2 service call {names.RUN_ITERATION} wind_shaper_msgs/srv/RunIteration '
+ROS2_EQUIVALENT = (f'ros2 service call /{names.RUN_ITERATION} wind_shaper_msgs/srv/RunIteration '
                    f'"{{target: parabolic}}"')
 START_HINT = 'start the graph with `wind-shaper up --sim`'
 #: While an iteration runs the coordinator publishes its status at 2 Hz; this long without one
@@ -29,7 +29,8 @@ RUNNING_STATES = ('commanding', 'sweeping', 'estimating', 'updating')
 
 
 def _not_running(what: str, wait_s: float) -> int:
-    print(f'no coordinator answered on {what} within {wait_s:g} s: {START_HINT}', file=sys.stderr)
+    print(f'no coordinator answered on {names.resolve(what)} within {wait_s:g} s: {START_HINT}',
+          file=sys.stderr)
     return 2
 
 
@@ -45,7 +46,10 @@ class _Session:
         from rclpy.signals import SignalHandlerOptions
         self.context = rclpy.Context()
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(f'wind_shaper_cli_{os.getpid()}', context=self.context)
+        # in the graph's namespace ($WIND_SHAPER_NAMESPACE, set by --namespace), where the
+        # graph's relative names resolve as the nodes' do
+        self.node = rclpy.create_node(f'wind_shaper_cli_{os.getpid()}', context=self.context,
+                                      namespace=names.namespace_from_env())
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -207,7 +211,7 @@ def _cmd_status(args) -> int:
     with _Session() as session:
         status = session.latest_status()
         if not session.spin_until(lambda: status[0] is not None, args.wait):
-            print(f'no coordinator status on {names.STATUS} within {args.wait:g} s: {START_HINT}',
+            print(f'no coordinator status on {names.resolve(names.STATUS)} within {args.wait:g} s: {START_HINT}',
                   file=sys.stderr)
             return 2
         print(format_status(status[0]))
@@ -253,7 +257,7 @@ def _cmd_set_model(args) -> int:
         return 0
 
 
-QUERY_EXAMPLE = (f'ros2 service call {names.QUERY_FIELD} wind_shaper_msgs/srv/QueryField '
+QUERY_EXAMPLE = (f'ros2 service call /{names.QUERY_FIELD} wind_shaper_msgs/srv/QueryField '
                  f'"{{x: [0.0, 0.1], y: [0.0, 0.05]}}"')
 
 
@@ -271,7 +275,7 @@ def _cmd_field(args) -> int:
     with _Session() as session:
         client = session.node.create_client(QueryField, names.QUERY_FIELD)
         if not session.wait_for_service(client, args.wait):
-            print(f'no field_estimator answered on {names.QUERY_FIELD} within {args.wait:g} s: '
+            print(f'no field_estimator answered on {names.resolve(names.QUERY_FIELD)} within {args.wait:g} s: '
                   f'{START_HINT}', file=sys.stderr)
             return 2
         answer = session.call(client, QueryField.Request(x=[p[0] for p in points],
@@ -315,7 +319,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         'status', help='print the coordinator\'s latest status and exit',
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=f'On a full ROS 2 install: ros2 topic echo --once {names.STATUS}')
+        epilog=f'On a full ROS 2 install: ros2 topic echo --once /{names.STATUS}')
     _wait_arg(p)
     p.set_defaults(func=_cmd_status)
 
@@ -323,7 +327,7 @@ def register(subparsers) -> None:
         'cancel', help='stop the running iteration at its next step (the fans keep the last '
                        'completed iteration\'s commands)',
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=f'On a full ROS 2 install: ros2 service call {names.CANCEL_ITERATION} '
+        epilog=f'On a full ROS 2 install: ros2 service call /{names.CANCEL_ITERATION} '
                f'std_srvs/srv/Trigger')
     _wait_arg(p)
     p.set_defaults(func=_cmd_cancel)
@@ -332,7 +336,7 @@ def register(subparsers) -> None:
         'set-model', help='swap the running coordinator\'s prior model for a model file, '
                           'without a restart (from the next iteration on)',
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=f'On a full ROS 2 install: ros2 service call {names.SET_MODEL} '
+        epilog=f'On a full ROS 2 install: ros2 service call /{names.SET_MODEL} '
                f'wind_shaper_msgs/srv/SetModel "{{path: /abs/path/improved.yaml}}"')
     p.add_argument('model', help='a model file (YAML), e.g. from `wind-shaper model add --save`')
     _wait_arg(p)

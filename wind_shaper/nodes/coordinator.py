@@ -179,7 +179,8 @@ class CoordinatorNode(Node):
         try:
             applied = pwm_from_command(msg, self._fan_names)
         except ValueError as exc:
-            self.get_logger().warning(f'ignoring {names.FAN_APPLIED}: {exc}', throttle_duration_sec=10)
+            self.get_logger().warning(f'ignoring {self.resolve_topic_name(names.FAN_APPLIED)}: {exc}',
+                                      throttle_duration_sec=10)
             return
         self._applied, self._applied_at = applied, time.monotonic()
         watch = self._fan_watch
@@ -286,7 +287,7 @@ class CoordinatorNode(Node):
             self._waits.raise_for(reason, (
                 f'the fans did not report the commands {np.round(U, 4).tolist()} applied within '
                 f'{p.apply_timeout_s:g} s (tolerance {p.apply_tolerance:g}; last read-back: '
-                f'{got} on {names.FAN_APPLIED}): is fan_output running and the autopilot '
+                f'{got} on {self.resolve_topic_name(names.FAN_APPLIED)}): is fan_output running and the autopilot '
                 f'connected?'))
         if p.settle_s > 0:
             await self._waits.wait(None, self._waits.remaining(p.settle_s))
@@ -318,10 +319,10 @@ class CoordinatorNode(Node):
                 self._counting = False
         problem = watch.problem(time.monotonic(), self.params.readback_timeout_s, self._fan_names)
         if problem:
-            stays = (f'the rows stored so far stay: check the fans, then call {names.COLLECT} '
+            stays = (f'the rows stored so far stay: check the fans, then call {self.resolve_service_name(names.COLLECT)} '
                      f'again with the same design' if self._collect.active else
                      f'the run stays at iteration {k}: check the fans, then call '
-                     f'{names.RUN_ITERATION} again')
+                     f'{self.resolve_service_name(names.RUN_ITERATION)} again')
             raise IterationStopped(
                 IterationStatus.STATE_FAILED,
                 f'sweep discarded: {problem} (fan_output restarted, the autopilot link dropped, '
@@ -519,12 +520,12 @@ class CoordinatorNode(Node):
             return ''
         if self._collect.active:
             return (f'an experiment is running ({self._collect.status_text()}): wait for it or '
-                    f'call {names.CANCEL_ITERATION}')
+                    f'call {self.resolve_service_name(names.CANCEL_ITERATION)}')
         if self._hold.active:
             return (f'a held-plate point is being recorded: wait for it or call '
-                    f'{names.CANCEL_ITERATION}')
+                    f'{self.resolve_service_name(names.CANCEL_ITERATION)}')
         return (f'an iteration is running (k={self._run.k}, {self._state}): wait for it or call '
-                f'{names.CANCEL_ITERATION}')
+                f'{self.resolve_service_name(names.CANCEL_ITERATION)}')
 
     def begin_procedure(self, sweep_duration_s: float, timeout_s: float) -> None:
         """Mark a procedure running (call with ``lock`` held): its sweeps last

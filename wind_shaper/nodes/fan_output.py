@@ -274,7 +274,7 @@ class FanOutputNode(LifecycleNode):
                 return
             if self._estop:
                 self._reject('emergency stop is latched: the command was ignored; call '
-                             f'{names.RESET_STOP} first')
+                             f'{self.resolve_service_name(names.RESET_STOP)} first')
                 return
             target = np.clip(u, self._lo, self._hi)
             clipped = tuple(n for n, a, b in zip(self._names, u, target) if a != b)
@@ -387,7 +387,7 @@ class FanOutputNode(LifecycleNode):
             self._make_safe('emergency stop')
             link_open = self._link is not None
         self.get_logger().warning(f'EMERGENCY STOP: fans safe; commands refused until '
-                                  f'{names.RESET_STOP}')
+                                  f'{self.resolve_service_name(names.RESET_STOP)}')
         response.success = True
         response.message = ('fans at their safe pulse; latched until reset_stop' if link_open else
                             'latched; no MAVLink link is open, so nothing was sent')

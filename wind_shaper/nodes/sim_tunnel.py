@@ -195,7 +195,7 @@ class SimTunnel(Node):
             f'simulated tunnel ({len(self.fan_names)} fans, seed {sim.seed}): MAVLink autopilot '
             f'udp {HOST}:{self.mavlink_port} ({p.flavour}), Net F/T udp {HOST}:{self.netft_port} '
             f'at {p.netft_rate_hz:g} Hz, mocap {p.mocap_topic} at {p.mocap_rate_hz:g} Hz, sweep '
-            f'service {names.SWEEP}')
+            f'service {self.resolve_service_name(names.SWEEP)}')
 
     # ------------------------------------------------------------------ properties
     @property

@@ -28,7 +28,13 @@ def status(name: str, level: bytes, message: str, values: Mapping[str, object] =
 
 
 def array(node, *statuses: DiagnosticStatus) -> DiagnosticArray:
-    """The statuses in a DiagnosticArray stamped with ``node``'s clock."""
+    """The statuses in a DiagnosticArray stamped with ``node``'s clock. /diagnostics is shared by
+    the whole ROS domain: a node in a namespace prefixes its statuses' names with it
+    ("/tunnel_b fan_output: MAVLink fans"), so two tunnels' statuses stay apart."""
+    ns = node.get_namespace()
+    if ns not in ('', '/'):
+        for st in statuses:
+            st.name = f'{ns} {st.name}'
     msg = DiagnosticArray(status=list(statuses))
     msg.header.stamp = node.get_clock().now().to_msg()
     return msg

@@ -11,7 +11,7 @@ mcap_ros2 = pytest.importorskip('mcap_ros2.reader', reason='mcap-ros2-support (t
 from wind_shaper.app import Setup  # noqa: E402
 from wind_shaper.bag.storage import BagReader  # noqa: E402
 from wind_shaper.bag.sweeps import write_sweep_bag  # noqa: E402
-from wind_shaper.ros import names  # noqa: E402
+from wind_shaper.bag import topics as bt  # noqa: E402
 from wind_shaper.workbench.commands import simulated_sweeps  # noqa: E402
 
 
@@ -31,16 +31,16 @@ def test_a_sweep_bag_reads_back_with_the_mcap_ros2_decoder(tmp_path):
         for topic, t_ns, msg in reader.decoded():
             ours.setdefault(topic, []).append((t_ns, msg))
     assert {t: len(v) for t, v in got.items()} == {t: len(v) for t, v in ours.items()}
-    assert len(got[names.PLATE_POSE]) >= 100 and len(got[names.FORCE]) >= 200
-    xy = np.array([[m.ros_msg.pose.position.x, m.ros_msg.pose.position.y] for m in got[names.PLATE_POSE]])
-    xy_ours = np.array([[msg.pose.position.x, msg.pose.position.y] for _, msg in ours[names.PLATE_POSE]])
+    assert len(got[bt.PLATE_POSE]) >= 100 and len(got[bt.FORCE]) >= 200
+    xy = np.array([[m.ros_msg.pose.position.x, m.ros_msg.pose.position.y] for m in got[bt.PLATE_POSE]])
+    xy_ours = np.array([[msg.pose.position.x, msg.pose.position.y] for _, msg in ours[bt.PLATE_POSE]])
     np.testing.assert_array_equal(xy, xy_ours)
-    fz = [m.ros_msg.wrench.force.z for m in got[names.FORCE]]
-    assert fz == [msg.wrench.force.z for _, msg in ours[names.FORCE]]
-    assert [m.log_time_ns for m in got[names.FORCE]] == [t for t, _ in ours[names.FORCE]]
+    fz = [m.ros_msg.wrench.force.z for m in got[bt.FORCE]]
+    assert fz == [msg.wrench.force.z for _, msg in ours[bt.FORCE]]
+    assert [m.log_time_ns for m in got[bt.FORCE]] == [t for t, _ in ours[bt.FORCE]]
     # a wind_shaper type, decoded from the definition stored in the file
-    status = got[names.STATUS][0]
+    status = got[bt.STATUS][0]
     assert status.schema.name == 'wind_shaper_msgs/msg/IterationStatus'
     assert status.ros_msg.state in ('idle', 'commanding', 'sweeping', 'estimating', 'updating', 'done')
-    command = got[names.FAN_COMMAND][0].ros_msg
+    command = got[bt.FAN_COMMAND][0].ros_msg
     assert list(command.names) == list(setup.geometry.fans.names)

@@ -9,7 +9,7 @@ import yaml
 from wind_shaper.bag import (BagContentError, BagNotFoundError, BagReadError, BagReader,
                              BagWriteError, BagWriter, TopicQos, read_sweeps, write_sweep_bag)
 from wind_shaper.bag.types import has_header, msg_dir, typestore
-from wind_shaper.ros import names
+from wind_shaper.bag import topics as bt
 
 
 def fan_command(bag, k):
@@ -23,49 +23,49 @@ def fan_command(bag, k):
 def test_raw_bytes_round_trip_in_order_with_their_times(tmp_path, storage):
     path = tmp_path / 'bag'
     with BagWriter(path, storage=storage) as bag:
-        bag.add_topic(names.FAN_COMMAND)
+        bag.add_topic(bt.FAN_COMMAND)
         bag.add_topic('/other', 'std_msgs/msg/String', TopicQos(reliable=False, depth=5))
         sent = []
         for k in range(5):
             raw = bytes(typestore().serialize_cdr(fan_command(bag, k), 'wind_shaper_msgs/msg/FanCommand'))
-            bag.write_raw(names.FAN_COMMAND, 1_000 + 10 * k, raw)
-            sent.append((names.FAN_COMMAND, 1_000 + 10 * k, raw))
+            bag.write_raw(bt.FAN_COMMAND, 1_000 + 10 * k, raw)
+            sent.append((bt.FAN_COMMAND, 1_000 + 10 * k, raw))
         bag.write('/other', 1_025, bag.message('std_msgs/msg/String', data='hello'))
     with BagReader(path) as bag:
         topics = bag.topics
         got = list(bag.messages())
         decoded = list(bag.decoded(['/other']))
-    assert [m for m in got if m[0] == names.FAN_COMMAND] == sent
+    assert [m for m in got if m[0] == bt.FAN_COMMAND] == sent
     assert [t for _, t, _ in got] == sorted(t for _, t, _ in got)
-    assert topics[names.FAN_COMMAND].count == 5 and topics['/other'].msgtype == 'std_msgs/msg/String'
+    assert topics[bt.FAN_COMMAND].count == 5 and topics['/other'].msgtype == 'std_msgs/msg/String'
     assert decoded[0][2].data == 'hello'
     assert TopicQos.from_rosbags(topics['/other'].qos[0]) == TopicQos(reliable=False, depth=5)
-    assert TopicQos.from_rosbags(topics[names.FAN_COMMAND].qos[0]).transient_local
+    assert TopicQos.from_rosbags(topics[bt.FAN_COMMAND].qos[0]).transient_local
 
 
 def test_metadata_is_rosbag2_version_9_with_jazzy_hashes_and_string_qos(tmp_path):
     path = tmp_path / 'bag'
     with BagWriter(path) as bag:
-        bag.add_topic(names.FORCE)
-        bag.add_topic(names.STATUS)
+        bag.add_topic(bt.FORCE)
+        bag.add_topic(bt.STATUS)
     meta = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert meta['version'] == 9 and meta['storage_identifier'] == 'mcap'
     assert meta['relative_file_paths'] == ['bag.mcap'] and (path / 'bag.mcap').is_file()
     topics = {t['topic_metadata']['name']: t['topic_metadata'] for t in meta['topics_with_message_count']}
-    force = topics[names.FORCE]
+    force = topics[bt.FORCE]
     assert force['type'] == 'geometry_msgs/msg/WrenchStamped' and force['serialization_format'] == 'cdr'
     qos = force['offered_qos_profiles'][0]
     assert (qos['reliability'], qos['durability'], qos['history'], qos['depth']) == \
         ('reliable', 'volatile', 'keep_last', 100)
     assert qos['deadline'] == {'sec': 9223372036, 'nsec': 854775807}  # RMW_DURATION_INFINITE
-    assert topics[names.STATUS]['offered_qos_profiles'][0]['durability'] == 'transient_local'
+    assert topics[bt.STATUS]['offered_qos_profiles'][0]['durability'] == 'transient_local'
     # rosidl writes the type hashes next to the installed .msg files; rosbags must agree
     share = msg_dir()
     hashes = share / 'IterationStatus.json'
     if hashes.is_file():
         want = next(h['hash_string'] for h in json.loads(hashes.read_text())['type_hashes']
                     if h['type_name'] == 'wind_shaper_msgs/msg/IterationStatus')
-        assert topics[names.STATUS]['type_description_hash'] == want
+        assert topics[bt.STATUS]['type_description_hash'] == want
     assert force['type_description_hash'].startswith('RIHS01_')
 
 
@@ -152,10 +152,10 @@ def pose(sec):
 def test_a_bag_without_force_names_what_is_missing_and_what_it_has(tmp_path):
     path = tmp_path / 'poses_only'
     with BagWriter(path) as bag:
-        bag.add_topic(names.PLATE_POSE)
-        bag.add_topic(names.FORCE)  # declared but empty: as good as missing
+        bag.add_topic(bt.PLATE_POSE)
+        bag.add_topic(bt.FORCE)  # declared but empty: as good as missing
         for k in range(3):
-            bag.write(names.PLATE_POSE, k * 10_000_000, pose(k))
+            bag.write(bt.PLATE_POSE, k * 10_000_000, pose(k))
     with pytest.raises(BagContentError, match=r'no messages on /wind_shaper/force, needed to rebuild') as err:
         read_sweeps(path)
     assert '/wind_shaper/plate/pose (3)' in str(err.value)
@@ -164,8 +164,8 @@ def test_a_bag_without_force_names_what_is_missing_and_what_it_has(tmp_path):
 def test_a_bag_with_only_the_raw_mocap_pose_points_to_the_relay(tmp_path):
     path = tmp_path / 'mocap_only'
     with BagWriter(path) as bag:
-        bag.add_topic(names.MOCAP_POSE)
-        bag.write(names.MOCAP_POSE, 0, pose(0))
+        bag.add_topic(bt.MOCAP_POSE)
+        bag.write(bt.MOCAP_POSE, 0, pose(0))
     with pytest.raises(BagContentError, match='mocap frame.*pose_topic'):
         read_sweeps(path)
 

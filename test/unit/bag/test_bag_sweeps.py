@@ -10,7 +10,7 @@ from wind_shaper.core.errors import SweepError
 from wind_shaper.estimation.field import FieldEstimator
 from wind_shaper.estimation.frames import RigidTransform, quat_from_yaw
 from wind_shaper.core.geometry import TunnelGeometry
-from wind_shaper.ros import names
+from wind_shaper.bag import topics as bt
 
 
 def assert_same_sweep(got, want):
@@ -34,9 +34,9 @@ def test_read_sweeps_recovers_every_sweep_and_skips_the_plate_at_rest(tmp_path, 
     # the streams ran on while the plate rested: more force and pose in the bag than in sweeps
     with BagReader(path) as bag:
         topics = bag.topics
-    assert topics[names.FORCE].count > sum(r.n_force for r in records) + 1000
-    assert topics[names.PLATE_POSE].count > sum(len(s) for s in sim_sweeps) + 100
-    assert topics[names.FAN_APPLIED].count == 2 and topics[names.STATUS].count > 10
+    assert topics[bt.FORCE].count > sum(r.n_force for r in records) + 1000
+    assert topics[bt.PLATE_POSE].count > sum(len(s) for s in sim_sweeps) + 100
+    assert topics[bt.FAN_APPLIED].count == 2 and topics[bt.STATUS].count > 10
 
 
 def test_without_status_the_sweeps_are_cut_at_command_changes(tmp_path, sim_sweeps):
@@ -68,16 +68,16 @@ def test_the_mocap_pose_is_written_in_the_mocap_frame(tmp_path, sim_sweeps):
     path = write_sweep_bag(tmp_path / 'bag', sim_sweeps[:1], tunnel_from_mocap=tunnel_from_mocap,
                            idle_streams=False)
     with BagReader(path) as bag:
-        poses = {topic: [] for topic in (names.PLATE_POSE, names.MOCAP_POSE)}
+        poses = {topic: [] for topic in (bt.PLATE_POSE, bt.MOCAP_POSE)}
         for topic, _, msg in bag.decoded(list(poses)):
             p = msg.pose.position
             poses[topic].append((p.x, p.y, p.z))
-    back = tunnel_from_mocap.apply(np.array(poses[names.MOCAP_POSE]))
-    np.testing.assert_allclose(back, poses[names.PLATE_POSE], atol=1e-12)
-    assert not np.allclose(poses[names.MOCAP_POSE], poses[names.PLATE_POSE])
+    back = tunnel_from_mocap.apply(np.array(poses[bt.MOCAP_POSE]))
+    np.testing.assert_allclose(back, poses[bt.PLATE_POSE], atol=1e-12)
+    assert not np.allclose(poses[bt.MOCAP_POSE], poses[bt.PLATE_POSE])
     # and a bag read from the mocap topic pairs mocap-frame positions
-    (raw,) = read_sweeps(path, pose_topic=names.MOCAP_POSE)
-    np.testing.assert_allclose(raw.positions, np.array(poses[names.MOCAP_POSE])[:, :2])
+    (raw,) = read_sweeps(path, pose_topic=bt.MOCAP_POSE)
+    np.testing.assert_allclose(raw.positions, np.array(poses[bt.MOCAP_POSE])[:, :2])
 
 
 def test_a_field_estimate_is_written_and_the_offline_estimate_matches_it(tmp_path, sim_sweeps):
@@ -86,7 +86,7 @@ def test_a_field_estimate_is_written_and_the_offline_estimate_matches_it(tmp_pat
     estimate = estimator.estimate(sim_sweeps[0], geometry.key_points)
     path = write_sweep_bag(tmp_path / 'bag', sim_sweeps[:1], estimates=[estimate])
     with BagReader(path) as bag:
-        (_, _, msg), = list(bag.decoded([names.FIELD]))
+        (_, _, msg), = list(bag.decoded([bt.FIELD]))
     again = estimator.estimate(read_sweeps(path)[0], geometry.key_points)
     np.testing.assert_allclose(again.mean, msg.mean, atol=1e-9)
     np.testing.assert_allclose(again.std, msg.std, atol=1e-9)
@@ -98,7 +98,7 @@ def test_a_sweep_whose_streams_cannot_be_paired_is_skipped_with_a_warning(tmp_pa
     T = typestore().types
     path = tmp_path / 'bag'
     with BagWriter(path) as bag:
-        for topic in (names.FORCE, names.PLATE_POSE, names.STATUS):
+        for topic in (bt.FORCE, bt.PLATE_POSE, bt.STATUS):
             bag.add_topic(topic)
         def header(t_ns):
             return T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](
@@ -109,20 +109,20 @@ def test_a_sweep_whose_streams_cannot_be_paired_is_skipped_with_a_warning(tmp_pa
                 coverage=float('nan'), max_std=float('nan'), message='',
                 target='', fan_names=[], pwm=np.zeros(0), rmse=0.0, run_folder='')
         zero = T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
-        bag.write(names.STATUS, 0, status(0, 0, 'sweeping'))
+        bag.write(bt.STATUS, 0, status(0, 0, 'sweeping'))
         for j in range(1, 300):
             t = j * 1_000_000
-            bag.write(names.FORCE, t, T['geometry_msgs/msg/WrenchStamped'](
+            bag.write(bt.FORCE, t, T['geometry_msgs/msg/WrenchStamped'](
                 header=header(t), wrench=T['geometry_msgs/msg/Wrench'](
                     force=T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=1.0), torque=zero)))
-        bag.write(names.STATUS, 300_000_000, status(300_000_000, 0, 'estimating'))
-        bag.write(names.STATUS, 400_000_000, status(400_000_000, 1, 'sweeping'))
+        bag.write(bt.STATUS, 300_000_000, status(300_000_000, 0, 'estimating'))
+        bag.write(bt.STATUS, 400_000_000, status(400_000_000, 1, 'sweeping'))
         for j in range(41, 60):
             t = j * 10_000_000
-            bag.write(names.FORCE, t, T['geometry_msgs/msg/WrenchStamped'](
+            bag.write(bt.FORCE, t, T['geometry_msgs/msg/WrenchStamped'](
                 header=header(t), wrench=T['geometry_msgs/msg/Wrench'](
                     force=T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=2.0), torque=zero)))
-            bag.write(names.PLATE_POSE, t, T['geometry_msgs/msg/PoseStamped'](
+            bag.write(bt.PLATE_POSE, t, T['geometry_msgs/msg/PoseStamped'](
                 header=header(t), pose=T['geometry_msgs/msg/Pose'](
                     position=T['geometry_msgs/msg/Point'](x=0.01 * j, y=0.0, z=0.0),
                     orientation=T['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0))))
