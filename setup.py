@@ -1,4 +1,5 @@
 """Install script for wind_shaper (ament_python layout, also a plain pip package)."""
+import os
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -12,11 +13,12 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
-        ('share/' + PACKAGE + '/config', glob('config/*')),
+        ('share/' + PACKAGE + '/config', [f for f in glob('config/*') if os.path.isfile(f)]),
+        ('share/' + PACKAGE + '/config/rviz', glob('config/rviz/*.rviz')),
         ('share/' + PACKAGE + '/launch', glob('launch/*.launch.py')),
     ],
     package_data={PACKAGE: ['data/*.yaml']},
-    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'matplotlib', 'pymavlink', 'rosbags', 'pysindy', 'threadpoolctl'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'matplotlib', 'pymavlink', 'rosbags', 'pysindy', 'threadpoolctl', 'foxglove-sdk'],
     zip_safe=True,
     maintainer='wind_shaper developers',
     description='Online-learning airflow shaping for multi-fan wind tunnels',
@@ -31,6 +33,7 @@ setup(
             'field_estimator = wind_shaper.nodes.field_estimator:main',
             'coordinator = wind_shaper.nodes.coordinator:main',
             'sim_tunnel = wind_shaper.nodes.sim_tunnel:main',
+            'live_view = wind_shaper.nodes.live_view:main',
         ],
     },
 )

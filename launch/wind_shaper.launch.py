@@ -4,11 +4,13 @@
     ros2 launch wind_shaper wind_shaper.launch.py sim:=true       # on the simulated rig
     ros2 launch wind_shaper wind_shaper.launch.py config_dir:=/path/to/lab/config
     ros2 launch wind_shaper wind_shaper.launch.py namespace:=tunnel_b   # a second tunnel
+    ros2 launch wind_shaper wind_shaper.launch.py sim:=true live:=true foxglove_port:=8765
 
 Each node reads config_dir/<node>.yaml; the nodes that also read the core's tunnel.yaml,
 shaping.yaml, model.yaml, sim.yaml get config_dir as their config_dir parameter. With
 sim:=true, sim_tunnel starts first and the rig drivers (fan_output, force_sensor) follow after
-rig_delay seconds, so they find its UDP sockets open.
+rig_delay seconds, so they find its UDP sockets open. With live:=true, live_view publishes the
+field, the fans and the sweep path for RViz2 (and serves them to Foxglove with foxglove_port).
 """
 import os
 
@@ -18,20 +20,25 @@ from launch.actions import DeclareLaunchArgument, GroupAction, TimerAction
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 #: Every node of the graph, sim_tunnel only with sim:=true.
 SIM_NODE = 'sim_tunnel'
 RIG_DRIVERS = ('fan_output', 'force_sensor')
 OTHER_NODES = ('mocap_relay', 'field_estimator', 'coordinator')
+#: The optional live view (live:=true), as `wind-shaper up --live`.
+LIVE_NODE = 'live_view'
 #: Nodes that read the core's YAML files through their config_dir parameter.
-USES_CONFIG_DIR = ('sim_tunnel', 'field_estimator', 'coordinator')
+USES_CONFIG_DIR = ('sim_tunnel', 'field_estimator', 'coordinator', 'live_view')
 
 
-def node(name):
+def node(name, **extra):
     config_dir = LaunchConfiguration('config_dir')
     parameters = [PathJoinSubstitution([config_dir, name + '.yaml'])]
     if name in USES_CONFIG_DIR:
         parameters.append({'config_dir': config_dir})
+    if extra:
+        parameters.append(extra)
     return Node(package='wind_shaper', executable=name, name=name, output='screen',
                 emulate_tty=True, parameters=parameters,
                 namespace=LaunchConfiguration('namespace'))
@@ -59,4 +66,12 @@ def generate_launch_description():
                                  actions=[node(name) for name in RIG_DRIVERS])],
                     condition=IfCondition(sim)),
         GroupAction([node(name) for name in RIG_DRIVERS], condition=UnlessCondition(sim)),
+        DeclareLaunchArgument('live', default_value='false',
+                              description='true: start live_view (wind_shaper/live/* for RViz2)'),
+        DeclareLaunchArgument('foxglove_port', default_value='0',
+                              description='with live:=true, serve the live view to Foxglove on '
+                                          'this WebSocket port (0 = off)'),
+        GroupAction([node(LIVE_NODE, foxglove_port=ParameterValue(
+            LaunchConfiguration('foxglove_port'), value_type=int))],
+                    condition=IfCondition(LaunchConfiguration('live'))),
     ])

@@ -56,17 +56,23 @@ class Up:
     MAVLink and Net F/T ports are free ones, so a graph someone runs on the default ports (a
     demo) does not collide with the test's."""
 
-    def __init__(self, env, cwd, *args):
+    def __init__(self, env, cwd, *args, sim=True, prefix=(), options=()):
+        """sim: start the simulated rig (``--sim``) on free ports; prefix: what runs the command
+        (``ip netns exec HOST`` for a host of its own); options: the command's global options
+        (``--namespace NS``)."""
         missing = [n for n in NODES if not (Path(__file__).resolve().parents[2] / 'wind_shaper'
                                              / 'nodes' / f'{n}.py').is_file()]
         assert not missing, f'node modules missing: {missing}'
-        mavlink, netft = free_udp_ports(2)
-        ports = ['--set', f'sim_tunnel.mavlink_port={mavlink}',
-                 '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
-                 '--set', f'sim_tunnel.netft_port={netft}',
-                 '--set', f'force_sensor.sensor_port={netft}']
+        ports = []
+        if sim:
+            mavlink, netft = free_udp_ports(2)
+            ports = ['--sim', '--set', f'sim_tunnel.mavlink_port={mavlink}',
+                     '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
+                     '--set', f'sim_tunnel.netft_port={netft}',
+                     '--set', f'force_sensor.sensor_port={netft}']
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'wind_shaper.cli.main', 'up', '--sim', *ports, *args], cwd=cwd,
+            [*prefix, sys.executable, '-m', 'wind_shaper.cli.main', *options, 'up', *ports, *args],
+            cwd=cwd,
             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, start_new_session=True)
         self.lines = []

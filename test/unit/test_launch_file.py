@@ -38,12 +38,14 @@ def test_the_launch_file_starts_the_whole_graph():
     c = constants(tree)
     launched = [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]
     assert sorted(launched) == sorted([names.SIM_TUNNEL, *names.GRAPH_NODES])
+    assert c['LIVE_NODE'] == names.LIVE_VIEW
     assert len(set(launched)) == len(launched)
     assert c['SIM_NODE'] == names.SIM_TUNNEL
     functions = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)}
     assert {'sim', 'config_dir', 'rig_delay', 'wind_shaper', 'false'} <= strings
+    assert {'live', 'foxglove_port'} <= strings
     imported = {(n.module or '').split('.')[0] for n in ast.walk(tree)
                 if isinstance(n, ast.ImportFrom)}
     assert imported <= {'launch', 'launch_ros', 'ament_index_python'}
@@ -52,7 +54,7 @@ def test_the_launch_file_starts_the_whole_graph():
 def test_every_launched_node_has_an_entry_point_and_a_params_file():
     c = constants(ast.parse(LAUNCH.read_text()))
     scripts = console_scripts()
-    for node in [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]:
+    for node in [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES'], c['LIVE_NODE']]:
         assert scripts.get(node) == f'wind_shaper.nodes.{node}:main', f'{node}: no entry point'
         params = ROOT / 'config' / f'{node}.yaml'
         assert params.is_file(), f'config/{node}.yaml is missing'
@@ -66,6 +68,7 @@ def test_every_launched_node_has_an_entry_point_and_a_params_file():
 def test_setup_installs_the_launch_file_and_the_configs():
     text = (ROOT / 'setup.py').read_text()
     assert "glob('launch/*.launch.py')" in text and "glob('config/*')" in text
+    assert "glob('config/rviz/*.rviz')" in text
     assert LAUNCH.name.endswith('.launch.py')
 
 
@@ -75,9 +78,9 @@ def test_up_and_the_launch_file_give_every_node_the_same_parameters(tmp_path):
     the nodes the launch file gives it to; with sim, sim_tunnel first and the rig drivers after."""
     from wind_shaper.supervisor import plan_graph
     c = constants(ast.parse(LAUNCH.read_text()))
-    launched = [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES']]
+    launched = [c['SIM_NODE'], *c['RIG_DRIVERS'], *c['OTHER_NODES'], c['LIVE_NODE']]
     config_dir = ROOT / 'config'
-    specs = plan_graph([names.SIM_TUNNEL, *names.GRAPH_NODES], config_dir)
+    specs = plan_graph([names.SIM_TUNNEL, *names.GRAPH_NODES, names.LIVE_VIEW], config_dir)
     assert sorted(s.name for s in specs) == sorted(launched)
     for spec in specs:
         argv = list(spec.argv)
@@ -102,3 +105,21 @@ def test_up_and_the_launch_file_put_every_node_in_the_same_namespace():
         assert argv[argv.index('-r') + 1] == '__ns:=/tunnel_b', spec.name
     for spec in plan_graph(nodes, ROOT / 'config'):
         assert '-r' not in spec.argv
+
+
+def test_the_rviz_config_and_the_foxglove_layout_show_the_live_topics():
+    """Both files parse and name the topics live_view publishes (RViz2 and Foxglove themselves
+    cannot run here: the files are checked as data)."""
+    import json
+    from wind_shaper.nodes.live_view import LIVE_FANS, LIVE_FIELD, LIVE_PATH
+    rviz = yaml.safe_load((ROOT / 'config' / 'rviz' / 'wind_shaper.rviz').read_text())
+    manager = rviz['Visualization Manager']
+    assert manager['Global Options']['Fixed Frame'] == names.TUNNEL_FRAME
+    topics = {d['Topic']['Value'] for d in manager['Displays'] if 'Topic' in d}
+    assert topics == {'/' + t for t in (LIVE_FIELD, LIVE_FANS, LIVE_PATH, names.PLATE_POSE)}
+    cloud = next(d for d in manager['Displays'] if d['Class'].endswith('PointCloud2'))
+    assert cloud['Channel Name'] == 'force'
+    layout = json.loads((ROOT / 'config' / 'foxglove_layout.json').read_text())
+    three_d = layout['configById']['3D!wind_shaper']
+    assert set(three_d['topics']) == {'/' + t for t in (LIVE_FIELD, LIVE_FANS, LIVE_PATH)}
+    assert layout['layout']['first'] == '3D!wind_shaper'

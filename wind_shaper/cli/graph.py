@@ -85,6 +85,12 @@ def register(subparsers) -> None:
                         'mocap_relay, field_estimator, coordinator; sim_tunnel comes with --sim): '
                         'the graph split over hosts, each running `up --nodes ...` in the same '
                         'ROS domain (and namespace)')
+    p.add_argument('--live', action='store_true',
+                   help='also start live_view: the field (PointCloud2), the fans and the sweep path '
+                        '(MarkerArray) on wind_shaper/live/* for RViz2 (config/rviz/wind_shaper.rviz)')
+    p.add_argument('--foxglove', type=int, nargs='?', const=8765, default=None, metavar='PORT',
+                   help='also serve the live view to the Foxglove app: ws://127.0.0.1:PORT (default '
+                        '8765; implies --live; docs/foxglove_layout.json arranges the panels)')
     p.set_defaults(func=_cmd_up)
 
 
@@ -179,6 +185,8 @@ def _overrides(args) -> dict:
         out.setdefault(node, {})[name] = value
     if args.run_name:
         out.setdefault('coordinator', {})[RUN_NAME_PARAM] = args.run_name
+    if args.foxglove is not None:
+        out.setdefault('live_view', {}).setdefault('foxglove_port', args.foxglove)
     return out
 
 
@@ -220,6 +228,8 @@ def _cmd_up(args) -> int:
     except ValueError as exc:
         print(f'wind-shaper up: {exc}', file=sys.stderr)
         return 2
+    if args.live or args.foxglove is not None:
+        nodes.append(names.LIVE_VIEW)
     if args.iterations is not None and names.COORDINATOR not in nodes:
         print('wind-shaper up: --iterations needs the coordinator on this host: add it to --nodes',
               file=sys.stderr)

@@ -24,6 +24,7 @@ MOCAP_RELAY = 'mocap_relay'
 FIELD_ESTIMATOR = 'field_estimator'
 COORDINATOR = 'coordinator'
 SIM_TUNNEL = 'sim_tunnel'
+LIVE_VIEW = 'live_view'                          # optional: up --live / --foxglove
 GRAPH_NODES = (FAN_OUTPUT, FORCE_SENSOR, MOCAP_RELAY, FIELD_ESTIMATOR, COORDINATOR)
 
 # Topics
