@@ -59,12 +59,17 @@ def subscriber_main(executor: str, seconds: float, wait_s: float, depth: int | N
     window = {}
     done = Future()
 
+    latency: list[float] = []
+
     def on_force(msg):
         if not ks:
             window['t0'] = time.monotonic()
             window['cpu0'] = time.process_time()
             print('START', flush=True)
         ks.append(msg.wrench.force.x)
+        # the node stamps each sample with its arrival on the node's clock (the same machine's
+        # clock here, also across network namespaces): stamp to receipt is the ROS hop
+        latency.append(time.time() - (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec))
         if time.monotonic() - window['t0'] >= seconds and not done.done():
             window['t1'] = time.monotonic()
             window['cpu1'] = time.process_time()
@@ -92,9 +97,12 @@ def subscriber_main(executor: str, seconds: float, wait_s: float, depth: int | N
         ex.spin_until_future_complete(done, timeout_sec=0.2)
     if done.done():
         counted = [int(round(k)) for k in ks]
+        lat = sorted(latency)
         result = dict(first=min(counted), last=max(counted), messages=len(counted),
                       distinct=len(set(counted)), window_s=window['t1'] - window['t0'],
-                      cpu_s=window['cpu1'] - window['cpu0'], node_counts=node_counts)
+                      cpu_s=window['cpu1'] - window['cpu0'], node_counts=node_counts,
+                      latency_median_ms=1e3 * lat[len(lat) // 2],
+                      latency_p99_ms=1e3 * lat[min(len(lat) - 1, int(0.99 * len(lat)))])
     else:
         result = dict(error=f'{len(ks)} messages within {wait_s + seconds:.0f} s')
     print('RESULT ' + json.dumps(result), flush=True)
