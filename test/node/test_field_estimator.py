@@ -296,6 +296,26 @@ def test_a_region_sweep_needs_only_its_key_points_passed(harness, sim):
     assert np.max(std[half]) < np.max(std[kp[:, 0] > 0.2])
 
 
+def test_a_peek_publishes_the_field_so_far_for_the_live_view(harness, sim):
+    """While the plate has covered half the disc, a peek is refused for the gaps, but the field
+    of the sweep so far goes out on wind_shaper/field/partial: the live view shows it forming,
+    with a large std where the plate has not been."""
+    partial = []
+    harness.peer.create_subscription(FieldEstimate, names.FIELD_PARTIAL, partial.append, qos.COMMAND)
+    time.sleep(0.3)
+    harness.begin_sweep()
+    harness.publish(*sweep_streams(sim, n_poses=250, half_disc=True, seed=4))
+    resp = harness.estimate_field(peek=True)
+    assert not resp.success and 'missed' in resp.message
+    assert wait_until(lambda: partial, 3.0), 'no partial field published'
+    kp = harness.node._key_points
+    std = np.asarray(partial[-1].std)
+    assert len(std) == len(kp)
+    assert np.median(std[kp[:, 0] < -0.1]) < 0.5 * np.median(std[kp[:, 0] > 0.15])
+    time.sleep(0.2)
+    assert harness.fields == []   # the estimate of a finished sweep is not replaced
+
+
 @pytest.mark.fault
 def test_streams_out_of_step_are_reported(harness, sim, fault_row):
     force_t, force, pose_t, pose_xy = sweep_streams(sim, n_poses=200, seed=5)

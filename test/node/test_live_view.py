@@ -64,7 +64,8 @@ def view(ros_context):
     pubs = {'field': peer.create_publisher(FieldEstimate, names.FIELD, qos.LATCHED),
             'status': peer.create_publisher(IterationStatus, names.STATUS, qos.LATCHED),
             'applied': peer.create_publisher(FanCommand, names.FAN_APPLIED, qos.LATCHED),
-            'pose': peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)}
+            'pose': peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM),
+            'partial': peer.create_publisher(FieldEstimate, names.FIELD_PARTIAL, qos.COMMAND)}
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     executor.add_node(peer)
@@ -112,6 +113,10 @@ def test_the_field_fans_and_sweep_path_for_rviz(view):
     np.testing.assert_allclose(values['force'], mean, atol=1e-5)
     np.testing.assert_allclose(values['target'], 2.5, atol=1e-5)
     np.testing.assert_allclose(values['residual'], mean - 2.5, atol=1e-5)
+    # the field of a sweep under way (each peek of the coordinator) replaces it as it forms
+    assert wait_for(lambda: pubs['partial'].get_subscription_count() > 0)
+    pubs['partial'].publish(field_msg(kp, mean + 1.0, np.full(len(kp), 0.3), k=1))
+    assert wait_for(lambda: abs(read_point_cloud(got['field'][-1])['force'][0] - (mean[0] + 1.0)) < 1e-4)
     # the fans: hub, spin and label per fan, the command in the label and the hub's height
     pwm = np.linspace(0.1, 0.6, 7)
     pubs['applied'].publish(fan_command(list(setup.geometry.fans.names), pwm))

@@ -105,6 +105,7 @@ class FieldEstimatorNode(Node):
         self.create_subscription(PoseStamped, p.pose_topic, self._on_plate_pose, qos.STREAM,
                                  callback_group=poses)
         self._field_pub = self.create_publisher(FieldEstimate, names.FIELD, qos.LATCHED)
+        self._partial_pub = self.create_publisher(FieldEstimate, names.FIELD_PARTIAL, qos.COMMAND)
         self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.create_service(Trigger, names.BEGIN_SWEEP, self._handle_begin_sweep,
                             callback_group=services)
@@ -213,8 +214,9 @@ class FieldEstimatorNode(Node):
 
     def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
         """How far the sweep is: the estimate from what is collected so far, collection going
-        on; nothing is published, journalled or closed. The pairs come back for the coverage
-        (also when the estimate is refused for gaps)."""
+        on; nothing is journalled or closed, and only the partial field is published (for the
+        live view). The pairs come back for the coverage (also when the estimate is refused for
+        gaps)."""
         with self._lock:
             force_t, force = self._force.arrays()
             pose_t, pose_x, pose_y = self._pose.arrays()
@@ -229,6 +231,7 @@ class FieldEstimatorNode(Node):
             names_ = list(request.fan_names)
             response.samples = sweep_to_msg(sweep, request.iteration, names_,
                                             stamp=seconds_to_stamp(t_start))
+            self._publish_partial(sweep, request.iteration, names_, pwm, t_start)
             est = self._estimator.estimate(sweep, self._key_points, required=required)
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
@@ -240,6 +243,17 @@ class FieldEstimatorNode(Node):
         response.success = True
         response.message = f'{len(sweep)} pairs so far, max std {float(np.max(est.std)):.3f} N'
         return response
+
+    def _publish_partial(self, sweep, iteration: int, fan_names, pwm, t_start: float) -> None:
+        """The field of the sweep so far on ``wind_shaper/field/partial`` (the live view shows it
+        forming): no key point need be passed yet, the std is large where the plate has not been."""
+        try:
+            est = self._estimator.estimate(sweep, self._key_points,
+                                           required=np.zeros(len(self._key_points), dtype=bool))
+        except WindShaperError:
+            return   # too few samples yet
+        self._partial_pub.publish(estimate_to_msg(est, iteration, fan_names, pwm, len(sweep),
+                                                  stamp=seconds_to_stamp(t_start + sweep.times[-1])))
 
     def _handle_query(self, request: QueryField.Request, response: QueryField.Response):
         """The latest estimate's force and std at the requested positions; a bad request (no

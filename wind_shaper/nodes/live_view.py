@@ -1,6 +1,8 @@
 """live_view: the field forming live, for RViz2 and the Foxglove app.
 
-Subscribes the field estimate (``wind_shaper/field``), the coordinator's status (its target and
+Subscribes the field estimate (``wind_shaper/field``, and while a sweep runs the estimate of the
+sweep so far, ``wind_shaper/field/partial``, so the field forms as the plate moves), the
+coordinator's status (its target and
 state), the fans' read-back (``wind_shaper/fans/applied``) and the plate pose
 (``wind_shaper/plate/pose``), and publishes, in frame ``tunnel``:
 
@@ -86,6 +88,7 @@ class LiveViewNode(Node):
         self._path_pub = self.create_publisher(MarkerArray, LIVE_PATH, qos.COMMAND)
         self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.create_subscription(FieldEstimate, names.FIELD, self._on_field, qos.LATCHED)
+        self.create_subscription(FieldEstimate, names.FIELD_PARTIAL, self._on_field, qos.COMMAND)
         self.create_subscription(IterationStatus, names.STATUS, self._on_status, qos.LATCHED)
         self.create_subscription(FanCommand, names.FAN_APPLIED, self._on_applied, qos.LATCHED)
         self.create_subscription(PoseStamped, names.PLATE_POSE, self._on_pose, qos.STREAM)

@@ -34,6 +34,7 @@ FORCE = 'wind_shaper/force'                     # geometry_msgs/WrenchStamped, s
 MOCAP_POSE = '/vrpn_mocap/plate/pose'            # geometry_msgs/PoseStamped, mocap frame (raw)
 PLATE_POSE = 'wind_shaper/plate/pose'           # geometry_msgs/PoseStamped, tunnel frame, plate centre
 FIELD = 'wind_shaper/field'                     # wind_shaper_msgs/FieldEstimate
+FIELD_PARTIAL = 'wind_shaper/field/partial'     # wind_shaper_msgs/FieldEstimate of the sweep so far (each peek)
 STATUS = 'wind_shaper/iteration/status'         # wind_shaper_msgs/IterationStatus
 EXPERIMENT_STATUS = 'wind_shaper/experiment/status'  # wind_shaper_msgs/ExperimentStatus
 EXPERIMENT_SWEEPS = 'wind_shaper/experiment/sweeps'  # wind_shaper_msgs/SweepSamples: each stored row
