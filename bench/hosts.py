@@ -35,6 +35,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'tools'))
+sys.path.insert(0, str(ROOT / 'bench'))
+from force_stream import _stop  # noqa: E402  (SIGINT, then SIGKILL after a grace time)
 PYTHON = sys.executable
 FORCE_STREAM = str(ROOT / 'bench' / 'force_stream.py')
 
@@ -45,16 +47,6 @@ def _env(domain: int) -> dict:
     for key in ('ROS_LOCALHOST_ONLY', 'ROS_STATIC_PEERS', 'WIND_SHAPER_NAMESPACE'):
         env.pop(key, None)
     return env
-
-
-def _stop(process: subprocess.Popen, grace_s: float = 5.0) -> None:
-    if process.poll() is None:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout=grace_s)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=grace_s)
 
 
 # ------------------------------------------------------------------------- child: Net F/T server
