@@ -35,7 +35,7 @@ from wind_shaper_msgs.msg import FanCommand, FieldEstimate, IterationStatus
 
 from ..app import Setup
 from ..core.errors import WindShaperError
-from ..report.live import SweepTrail, fan_views
+from ..estimation.view import SweepTrail, fan_views
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import pwm_from_command

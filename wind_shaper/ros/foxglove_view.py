@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from ..report.live import POINT_FIELDS, FanView, field_points
+from ..estimation.view import POINT_FIELDS, FanView, field_points
 
 FIELD_CHANNEL = '/wind_shaper/live/field'
 FANS_CHANNEL = '/wind_shaper/live/fans'

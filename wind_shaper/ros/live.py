@@ -10,7 +10,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..report.live import POINT_FIELDS, FanView, field_points
+from ..estimation.view import POINT_FIELDS, FanView, field_points
 from . import names
 
 
