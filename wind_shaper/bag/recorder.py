@@ -95,8 +95,10 @@ class Recorder:
         self._subscriptions = {}
         self._node = self._executor = None
         try:
-            self._node = rclpy.create_node(node_name, context=context)
-            # a graph name (wind_shaper/force) is recorded under its absolute name
+            # in the command line's namespace: a graph name (wind_shaper/force) given by the
+            # user resolves where the graph is, and is recorded under its absolute name
+            self._node = rclpy.create_node(node_name, context=context,
+                                           namespace=names.namespace_from_env())
             self.topics = list(dict.fromkeys(self._node.resolve_topic_name(t) for t in self.topics))
             self._clock = self._node.get_clock()
             # The events executor keeps up with several kHz of raw messages (the default
