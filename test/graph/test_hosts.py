@@ -101,6 +101,8 @@ def plant_pwm(graph, seconds=4.0):
 def test_the_graph_runs_over_three_hosts_in_its_namespace(graph):
     code, out = cli(graph, 3, 'iterate', '--wait', '40')
     assert code == 0 and 'RMSE' in out, out
+    # a graph in a namespace keeps its own run folder (another tunnel's stays apart)
+    assert (Path(graph[0]) / 'runs' / NS / 'default' / 'iterations').is_dir()
     # the commands reach the plant on the tunnel host
     pwm, text = plant_pwm(graph)
     assert pwm and max(pwm.values()) > 0.05, text
@@ -114,7 +116,7 @@ def test_the_graph_runs_over_three_hosts_in_its_namespace(graph):
 @pytest.mark.timeout(600)
 def test_pulling_the_tunnel_hosts_link_mid_iteration_fails_it_safely_and_the_next_one_runs(graph):
     root, env, hosts, ups = graph
-    journal = Path(root) / 'runs' / 'journal'
+    journal = Path(root) / 'runs' / 'journal' / NS   # a namespaced graph's own journal
     before = {p.name for p in journal.glob('sweep-*')} if journal.is_dir() else set()
     call = subprocess.Popen([*hosts.exec(3), sys.executable, '-m', 'wind_shaper.cli.main',
                              '--namespace', NS, 'iterate', '--wait', '40'], cwd=root, env=env,

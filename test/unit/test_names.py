@@ -15,6 +15,11 @@ def test_graph_names_are_relative_and_resolve_under_the_namespace():
     assert names.resolve(names.MOCAP_POSE, 'tunnel_b') == names.MOCAP_POSE
 
 
+def test_a_namespace_gives_its_graph_its_own_folders():
+    assert names.folder_part('/') == '' and names.folder_part('tunnel_b') == 'tunnel_b'
+    assert names.folder_part('/lab/tunnel_b') == 'lab_tunnel_b'
+
+
 def test_the_command_line_namespace_comes_from_the_environment(monkeypatch):
     monkeypatch.delenv(names.NAMESPACE_ENV, raising=False)
     assert names.namespace_from_env() == '/' and names.resolve(names.FIELD) == '/wind_shaper/field'
@@ -23,7 +28,7 @@ def test_the_command_line_namespace_comes_from_the_environment(monkeypatch):
 
 
 @pytest.mark.parametrize('bad, part', [('2tunnel', '2tunnel'), ('tunnel-b', 'tunnel-b'),
-                                       ('a//b', "''"), ('tunnel_b/', 'trailing'), ('~/x', '~')])
+                                       ('a//b', 'empty name'), ('tunnel_b/', 'trailing'), ('~/x', '~')])
 def test_a_namespace_that_is_not_a_ros_name_is_refused_with_the_bad_part(bad, part):
     with pytest.raises(ValueError, match='not a valid ROS namespace') as err:
         names.check_namespace(bad)

@@ -90,7 +90,7 @@ def register(subparsers) -> None:
                         '(MarkerArray) on wind_shaper/live/* for RViz2 (config/rviz/wind_shaper.rviz)')
     p.add_argument('--foxglove', type=int, nargs='?', const=8765, default=None, metavar='PORT',
                    help='also serve the live view to the Foxglove app: ws://127.0.0.1:PORT (default '
-                        '8765; implies --live; docs/foxglove_layout.json arranges the panels)')
+                        '8765; implies --live; config/foxglove_layout.json arranges the panels)')
     p.set_defaults(func=_cmd_up)
 
 

@@ -21,7 +21,8 @@ from ..ros import names
 
 ROS2_EQUIVALENT = (f'ros2 service call /{names.RUN_ITERATION} wind_shaper_msgs/srv/RunIteration '
                    f'"{{target: parabolic}}"')
-START_HINT = 'start the graph with `wind-shaper up --sim`'
+START_HINT = ('start the graph with `wind-shaper up --sim`, or give the namespace it runs in '
+              '(`wind-shaper --namespace NS ...`)')
 #: While an iteration runs the coordinator publishes its status at 2 Hz; this long without one
 #: means it is gone [s].
 STALE_STATUS_S = 10.0

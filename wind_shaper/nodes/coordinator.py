@@ -62,7 +62,8 @@ STATUS_HZ = 2.0  # status rate while an iteration runs [Hz]
 class CoordinatorParams:
     config_dir: str = param('', "folder holding tunnel.yaml, shaping.yaml, model.yaml ('' = the "
                             'shipped config, or $WIND_SHAPER_CONFIG)')
-    run_root: str = param('runs', 'folder of the run folders (relative: to the working directory)')
+    run_root: str = param('runs', 'folder of the run folders (relative: to the working directory; a '
+                          'node in a namespace uses <run_root>/<namespace>)')
     run_name: str = param('default', 'run folder name under run_root; an existing run is resumed')
     target: str = param('parabolic', 'target of a new run, CLI syntax (parabolic, uniform:2.5, '
                         'gaussian@LM1, expr:..., csv:...); a resumed run keeps its own')
@@ -111,7 +112,9 @@ class CoordinatorNode(Node):
         super().__init__(names.COORDINATOR, **kwargs)
         self.params = p = declare_parameters(self, CoordinatorParams)
         self.setup = Setup.load(p.config_dir or None)
-        self._run = run_ = ShapingRun.open(self.setup, p.run_root, p.run_name, p.target,
+        # a graph in a namespace keeps its own run folder: runs/<namespace>/<run_name>
+        run_root = Path(p.run_root) / names.folder_part(self.get_namespace())
+        self._run = run_ = ShapingRun.open(self.setup, run_root, p.run_name, p.target,
                                            {'coordinator': asdict(p)})
         for level, note in run_.notes:
             (self.get_logger().warning if level == 'warning' else self.get_logger().info)(note)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,8 +87,10 @@ class FieldEstimatorNode(Node):
         self._last = 'no estimate yet'
         self._last_ok = True
         self._estimates = 0
-        self._journal = (SweepJournal(p.journal_dir, p.journal_keep, sync_period_s=p.journal_sync_s)
-                         if p.journal_dir else None)
+        # a graph in a namespace keeps its own journal: <journal_dir>/<namespace>
+        journal_dir = Path(p.journal_dir) / names.folder_part(self.get_namespace()) if p.journal_dir else None
+        self._journal = (SweepJournal(journal_dir, p.journal_keep, sync_period_s=p.journal_sync_s)
+                         if journal_dir else None)
         resumed = self._journal.reopen() if self._journal is not None else None
         if resumed is not None:
             # a crash (or kill) during collection: take the sweep back and go on collecting

@@ -1,7 +1,7 @@
 """The live view served to the Foxglove app through the foxglove-sdk WebSocket server: the same
 field, fans and sweep path as the RViz topics, in Foxglove's own schemas (``foxglove.PointCloud``,
 ``foxglove.SceneUpdate``), on channels named like the ROS topics. Open Foxglove, "Open
-connection", ``ws://HOST:PORT`` (``docs/foxglove_layout.json`` arranges the panels).
+connection", ``ws://HOST:PORT`` (``config/foxglove_layout.json`` arranges the panels).
 """
 from __future__ import annotations
 

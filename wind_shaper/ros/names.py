@@ -71,7 +71,8 @@ def check_namespace(namespace: str | None) -> str:
     if absolute.endswith('/'):
         bad = 'a trailing /'
     else:
-        bad = next((repr(t) for t in tokens if not _TOKEN.match(t)), '')
+        bad = next(('an empty name between two /' if not t else repr(t) for t in tokens
+                    if not _TOKEN.match(t)), '')
     if bad:
         raise ValueError(
             f'{namespace!r} is not a valid ROS namespace: it must be names separated by "/", each '
@@ -92,6 +93,13 @@ def resolve(name: str, namespace: str | None = None) -> str:
         return name
     ns = namespace_from_env() if namespace is None else check_namespace(namespace)
     return ('' if ns == '/' else ns) + '/' + name
+
+
+def folder_part(namespace: str) -> str:
+    """A namespace as a folder name ('' for the root namespace; ``/lab/tunnel_b`` ->
+    ``lab_tunnel_b``): what keeps two namespaced graphs' run folders and journals apart."""
+    ns = check_namespace(namespace)
+    return '' if ns == '/' else ns.strip('/').replace('/', '_')
 
 
 def suffix(name: str) -> str:
