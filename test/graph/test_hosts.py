@@ -32,7 +32,12 @@ SAFE_LINE = re.compile(r'\[(\d+\.\d+)\] \[[\w.]*fan_output\]: fans safe \((watch
 @pytest.fixture(scope='module')
 def hosts():
     if os.geteuid() != 0 or shutil.which('ip') is None:
-        pytest.skip('the multi-host test needs root and iproute2 (ip netns) to make its hosts')
+        # CI runs as root: a missing requirement there is a failure, never a quiet skip; a
+        # developer without root says so explicitly
+        if os.environ.get('WIND_SHAPER_NO_NETNS') == '1':
+            pytest.skip('WIND_SHAPER_NO_NETNS=1: the multi-host test is left out on this machine')
+        pytest.fail('the multi-host test needs root and iproute2 (ip netns) to make its hosts; '
+                    'run the suite as root, or set WIND_SHAPER_NO_NETNS=1 to leave this test out')
     h = Hosts(TAG, f'10.77.{os.getpid() % 200 + 20}.')
     try:
         h.create()
