@@ -21,20 +21,13 @@ from wind_shaper.nodes.fan_output import FanOutputNode, FanOutputParams  # noqa:
 from wind_shaper.ros import names, qos  # noqa: E402
 from wind_shaper.sim import SimAutopilot  # noqa: E402
 
+from waiting import wait_for  # noqa: E402
+
 pytestmark = pytest.mark.ros
 CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'fan_output.yaml'
 FANS = ['a', 'b', 'c']
 CHANNELS = [3, 5, 1]
 SAFE = {ch: 1000 for ch in range(1, 17)}
-
-
-def wait_for(predicate, timeout_s=3.0, interval_s=0.01):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
 
 
 class Harness:
@@ -343,7 +336,6 @@ def test_config_file_lists_every_parameter(ros_context):
         assert node.params == FanOutputParams(autostart=False)
     finally:
         node.destroy_node()
-
 
 
 @pytest.mark.fault

@@ -31,17 +31,14 @@ from wind_shaper.ros.convert import fan_command  # noqa: E402
 from wind_shaper.ros.foxglove_view import FIELD_CHANNEL  # noqa: E402
 from wind_shaper.ros.live import read_point_cloud  # noqa: E402
 
+from waiting import wait_for as _wait_for  # noqa: E402
+
 pytestmark = pytest.mark.ros
 CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'live_view.yaml'
 
 
 def wait_for(predicate, timeout_s=5.0, interval_s=0.02):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
+    return _wait_for(predicate, timeout_s, interval_s)
 
 
 def free_tcp_port():

@@ -20,6 +20,8 @@ from wind_shaper.estimation.frames import quat_to_yaw  # noqa: E402
 from wind_shaper.nodes.mocap_relay import MocapRelayNode, MocapRelayParams  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 
+from waiting import wait_for  # noqa: E402
+
 pytestmark = pytest.mark.ros
 CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'mocap_relay.yaml'
 S = math.sqrt(0.5)
@@ -27,15 +29,6 @@ S = math.sqrt(0.5)
 CALIBRATION = dict(tunnel_from_mocap=[0.1, -0.2, 0.0, 0.0, 0.0, S, S],
                    plate_offset=[0.0, 0.0, -0.05], max_speed_m_s=3.0, dropout_timeout_s=0.3,
                    max_radius_m=0.4)
-
-
-def wait_for(predicate, timeout_s=3.0, interval_s=0.01):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
 
 
 def pose(t, xyz, q=(0.0, 0.0, 0.0, 1.0), frame='mocap'):

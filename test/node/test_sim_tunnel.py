@@ -29,20 +29,13 @@ from wind_shaper.io import MavlinkFanLink, NetFtClient  # noqa: E402
 from wind_shaper.nodes.sim_tunnel import SimTunnel, SimTunnelParams  # noqa: E402
 from wind_shaper.ros import names, qos  # noqa: E402
 
+from waiting import wait_for  # noqa: E402
+
 pytestmark = pytest.mark.ros
 CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'sim_tunnel.yaml'
 FANS = ['LM1', 'HM1', 'LM2', 'HM2', 'LM3', 'HM3', 'CM']
 TUNNEL_FROM_MOCAP = [0.5, -0.25, 1.2, 0.0, 0.0, float(np.sin(0.3)), float(np.cos(0.3))]
 OFFSET = [0.02, -0.01, -0.04]
-
-
-def wait_for(predicate, timeout_s=3.0, interval_s=0.01):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
 
 
 @pytest.fixture

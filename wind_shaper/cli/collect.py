@@ -130,7 +130,7 @@ def _cmd_collect(args) -> int:
     with _Session() as session:
         client = session.node.create_client(Collect, names.COLLECT)
         if not session.wait_for_service(client, args.wait):
-            return _not_running(names.resolve(names.COLLECT), args.wait)
+            return _not_running(names.COLLECT, args.wait)
         latest = [None, 0.0]
 
         def keep(msg):

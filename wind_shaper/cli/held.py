@@ -73,7 +73,7 @@ def run_held(setup, args) -> int:
     with _Session() as session:
         client = session.node.create_client(HoldPoint, names.HOLD_POINT)
         if todo and not session.wait_for_service(client, args.wait):
-            return _not_running(names.resolve(names.HOLD_POINT), args.wait)
+            return _not_running(names.HOLD_POINT, args.wait)
         queue, previous, tries = list(todo), None, {}
         busy_until = time.monotonic() + args.timeout
         while queue:

@@ -346,10 +346,12 @@ class FieldEstimator:
             return GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std'])
         return GaussianProcessField(self.length_scale, self.noise_std, self.signal_std)
 
-    def estimate(self, sweep: Sweep, key_points: np.ndarray, required=None) -> FieldEstimate:
-        """The field at ``key_points`` (N, 2) [m] from ``sweep``; ``required`` (N,) bool: only
-        these key points must have been passed (a region sweep, ``control.region``); the others
-        get the GP's answer however far the samples are (a large std there)."""
+    def check_coverage(self, sweep: Sweep, key_points: np.ndarray, required=None) -> None:
+        """SweepError unless ``sweep`` has enough finite samples and passed every (``required``)
+        key point within ``max_gap``: the checks ``estimate`` makes before its GP."""
+        self._checked(sweep, key_points, required)
+
+    def _checked(self, sweep: Sweep, key_points: np.ndarray, required=None) -> Subsample:
         clean = sweep.finite()
         if len(clean) < self.min_samples:
             raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
@@ -366,6 +368,14 @@ class FieldEstimator:
                 f'key points (nearest sample farther than {self.max_gap} m; worst '
                 f'{sub.key_distance[worst]:.3f} m at {np.round(key_points[worst], 3).tolist()}): '
                 f'sweep the plate over {area}')
+        return sub
+
+    def estimate(self, sweep: Sweep, key_points: np.ndarray, required=None) -> FieldEstimate:
+        """The field at ``key_points`` (N, 2) [m] from ``sweep``; ``required`` (N,) bool: only
+        these key points must have been passed (a region sweep, ``control.region``); the others
+        get the GP's answer however far the samples are (a large std there). The GP does not
+        depend on ``required``, only the check does (``check_coverage``)."""
+        sub = self._checked(sweep, key_points, required)
         gp = self.make_gp(len(sub.forces), sub.positions, sub.forces)
         gp.fit(sub.positions, sub.forces)
         mean, std = gp.predict(key_points, return_std=True)

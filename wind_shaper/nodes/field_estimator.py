@@ -217,8 +217,8 @@ class FieldEstimatorNode(Node):
 
     def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
         """How far the sweep is: the estimate from what is collected so far, collection going
-        on; nothing is journalled or closed, and only the partial field is published (for the
-        live view). The pairs come back for the coverage (also when the estimate is refused for
+        on; nothing is journalled or closed; the field so far goes out on wind_shaper/field/partial
+        (for the live view, also before every key point is passed). The pairs come back for the coverage (also when the estimate is refused for
         gaps)."""
         with self._lock:
             force_t, force = self._force.arrays()
@@ -234,8 +234,14 @@ class FieldEstimatorNode(Node):
             names_ = list(request.fan_names)
             response.samples = sweep_to_msg(sweep, request.iteration, names_,
                                             stamp=seconds_to_stamp(t_start))
-            self._publish_partial(sweep, request.iteration, names_, pwm, t_start)
-            est = self._estimator.estimate(sweep, self._key_points, required=required)
+            # one GP for both: the field so far, published for the live view whatever the
+            # coverage, is the peek's answer once the (required) key points are passed
+            est = self._estimator.estimate(sweep, self._key_points,
+                                           required=np.zeros(len(self._key_points), dtype=bool))
+            self._partial_pub.publish(estimate_to_msg(
+                est, request.iteration, names_, pwm, len(sweep),
+                stamp=seconds_to_stamp(t_start + sweep.times[-1])))
+            self._estimator.check_coverage(sweep, self._key_points, required=required)
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             response.success = False
@@ -246,17 +252,6 @@ class FieldEstimatorNode(Node):
         response.success = True
         response.message = f'{len(sweep)} pairs so far, max std {float(np.max(est.std)):.3f} N'
         return response
-
-    def _publish_partial(self, sweep, iteration: int, fan_names, pwm, t_start: float) -> None:
-        """The field of the sweep so far on ``wind_shaper/field/partial`` (the live view shows it
-        forming): no key point need be passed yet, the std is large where the plate has not been."""
-        try:
-            est = self._estimator.estimate(sweep, self._key_points,
-                                           required=np.zeros(len(self._key_points), dtype=bool))
-        except WindShaperError:
-            return   # too few samples yet
-        self._partial_pub.publish(estimate_to_msg(est, iteration, fan_names, pwm, len(sweep),
-                                                  stamp=seconds_to_stamp(t_start + sweep.times[-1])))
 
     def _handle_query(self, request: QueryField.Request, response: QueryField.Response):
         """The latest estimate's force and std at the requested positions; a bad request (no
