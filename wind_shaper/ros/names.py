@@ -102,11 +102,6 @@ def folder_part(namespace: str) -> str:
     return '' if ns == '/' else ns.strip('/').replace('/', '_')
 
 
-def suffix(name: str) -> str:
-    """What a resolved name of ``name`` ends with in any namespace (``/wind_shaper/force``)."""
-    return name if name.startswith('/') else '/' + name
-
-
 # Frames
 TUNNEL_FRAME = 'tunnel'
 SENSOR_FRAME = 'force_sensor'
