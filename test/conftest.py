@@ -39,12 +39,22 @@ def _stop(process, grace_s=5.0):
 
 _domain_counter = itertools.count()
 _BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
+#: tools/dev.sh test runs the graph tier and the other tiers as two pytest processes at once
+#: (WIND_SHAPER_TEST_LANES=2); lane w takes the ids base + w, base + w + 2, ..., so the two
+#: never share a domain.
+_LANES = max(int(os.environ.get('WIND_SHAPER_TEST_LANES') or 1), 1)
+_LANE = int(os.environ.get('WIND_SHAPER_TEST_LANE') or 0) % _LANES
 
 
 def next_domain_id() -> str:
     """A ROS_DOMAIN_ID no other test of this run has had (the run's base id plus a counter,
-    within 1..100): whatever a test leaves behind cannot reach the next."""
-    return str((_BASE_DOMAIN + next(_domain_counter)) % 100 + 1)
+    within 1..100, interleaved over the lanes): whatever a test leaves behind cannot reach the
+    next."""
+    return str((_BASE_DOMAIN + _LANE + _LANES * next(_domain_counter)) % 100 + 1)
+
+
+if _LANES > 1:   # what runs with the plain environment stays in this lane's domains too
+    os.environ['ROS_DOMAIN_ID'] = next_domain_id()
 
 
 @pytest.fixture(scope='session')

@@ -3,7 +3,9 @@
 #
 #   bash tools/dev.sh setup              create or refresh .venv; a few seconds when nothing changed
 #   bash tools/dev.sh demo [ARGS...]     setup, then the node graph shapes the simulated tunnel (ARGS go to `wind-shaper up`)
-#   bash tools/dev.sh test [PYTEST...]   setup, then pytest on test/ (ARGS go to pytest)
+#   bash tools/dev.sh test [PYTEST...]   setup, then pytest: without ARGS the whole suite as two
+#                                        processes at once (test/graph beside the rest;
+#                                        WIND_SHAPER_TEST_LANES=1: one), with ARGS pytest ARGS
 #   bash tools/dev.sh clean              remove .venv and build output
 #
 # setup installs tools/requirements.txt into .venv, builds the interface package msg_defs/
@@ -220,7 +222,29 @@ cmd_test() {
     cd "$ROOT"
     log "pytest (ROS_DOMAIN_ID=$ROS_DOMAIN_ID, discovery LOCALHOST)"
     local rc=0
-    "$PY" -m pytest -q "$@" || rc=$?
+    if (($#)) || [[ ${WIND_SHAPER_TEST_LANES:-2} == 1 ]]; then
+        "$PY" -m pytest -q "$@" || rc=$?
+    else
+        # The whole suite as two pytest processes at once, on the two cores: the graph tier
+        # (one graph of node processes at a time: two would make each other's timing the test)
+        # beside the unit, node and e2e tiers. Each lane has its own ROS domains (test/conftest.py).
+        export WIND_SHAPER_TEST_LANES=2
+        local graph_log=$LOGS/test-graph.log graph_rc=0
+        mkdir -p "$LOGS"
+        log "lane 1: test/graph (output: $graph_log, shown when it ends); lane 2: the other tiers"
+        WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q test/graph >"$graph_log" 2>&1 &
+        local graph_pid=$!
+        trap 'kill "$graph_pid" 2>/dev/null' EXIT
+        # one BLAS thread: the graph's processes need the other core more than numpy does
+        WIND_SHAPER_TEST_LANE=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+            "$PY" -m pytest -q --ignore=test/graph test || rc=$?
+        wait "$graph_pid" || graph_rc=$?
+        trap - EXIT
+        log "lane 1 (test/graph):"
+        cat "$graph_log"
+        log "lane 1 exit code $graph_rc, lane 2 exit code $rc"
+        if ((rc == 0 || rc == 5)) && ((graph_rc != 0)); then rc=$graph_rc; fi
+    fi
     case $rc in
         0) ;;
         5) die "pytest collected no tests (exit 5): counted as a failure" ;;

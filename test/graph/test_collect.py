@@ -59,7 +59,8 @@ def graph(tmp_path_factory, new_domain_id):
     env.pop('ROS_LOCALHOST_ONLY', None)
     up = Up(env, root, '--startup-timeout', '60', '--max-restarts', '6',
             '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.sweep_duration_s=8',
-            '--set', 'coordinator.max_sweeps=4', '--set', f'sim_tunnel.hidden={HIDDEN}')
+            '--set', 'coordinator.max_sweeps=4', '--set', 'coordinator.hold_still_s=0.3',
+            '--set', f'sim_tunnel.hidden={HIDDEN}')
     try:
         pids = node_pids(up.wait_line(UP_LINE.pattern, 75))
         yield root, env, up, pids

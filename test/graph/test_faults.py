@@ -112,14 +112,14 @@ def rig(tmp_path_factory, new_domain_id):
     assert not [pid for pid in r.pids.values() if alive(pid)], 'a node outlived the graph'
 
 
-def kill_mid_sweep(rig, node):
-    """Kill ``node`` one second into the next iteration's sweep; returns (k, journal rows of
-    the open sweep right after the kill, the sweep's folder, the iterate call)."""
+def kill_mid_sweep(rig, node, after_s=1.0):
+    """Kill ``node`` ``after_s`` [s] into the next iteration's sweep; returns (k, journal rows
+    of the open sweep right after the kill, the sweep's folder, the iterate call)."""
     before = rig.state()
     k = before.next_k
     call = rig.iterate_async()
     rig.wait_new_line(rf'\[sweeping\] iteration {k}: sweeping', 60)
-    time.sleep(1.0)
+    time.sleep(after_s)
     folder = rig.open_sweep()
     rig.kill_and_wait_restart(node)
     rows = load_sweep_samples(folder)               # what was recorded when the node died
@@ -169,7 +169,10 @@ def test_coordinator_killed_mid_sweep_resumes_from_the_last_completed_iteration(
 
 @pytest.mark.timeout(240)
 def test_fan_output_killed_mid_sweep_discards_the_sweep_and_the_run_stays(rig, fault_row):
-    before, call, folder, rows = kill_mid_sweep(rig, 'fan_output')
+    # early in the 3 s sweep: the read-back then pauses well beyond readback_timeout_s (2 s)
+    # before the sweep ends (killed after 1 s on a loaded machine, the pause came out at the
+    # timeout and the sweep was kept)
+    before, call, folder, rows = kill_mid_sweep(rig, 'fan_output', after_s=0.2)
     code, out = rig.finish(call)
     discarded = code != 0 and 'sweep discarded' in out
     stayed = rig.state().last_completed == before.last_completed

@@ -3,13 +3,16 @@ used and stopped, with every child checked by PID."""
 import json
 import os
 import re
+import shutil
 import signal
 import time
+from pathlib import Path
 
 import pytest
 from up_driver import NODES, UP_LINE, alive, children_of, node_pids
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.timeout(120)
@@ -79,10 +82,20 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
 @pytest.mark.timeout(240)
 def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     # the simulated plate would sweep for 20 s; the coordinator watches the estimate (coverage
-    # and largest std, live in its status) and ends the sweep through the stop service
+    # and largest std, live in its status) and ends the sweep through the stop service. The
+    # shipped threshold (1.2 x the noise floor, 0.060 N) is met about when a 20 s tour ends (once
+    # 0.062 N at its end on a loaded machine): this test's config asks for 1.6 x, so what is
+    # tested is the ending, not how small the std gets
+    config = tmp_path / 'config'
+    shutil.copytree(ROOT / 'config', config)
+    shaping = config / 'shaping.yaml'
+    text = shaping.read_text()
+    assert 'std_factor: 1.2 ' in text
+    shaping.write_text(text.replace('std_factor: 1.2 ', 'std_factor: 1.6 '))
     u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
            '--set', 'coordinator.sweep_duration_s=20.0', '--set', 'coordinator.sweep_min_s=3.0',
-           '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3')
+           '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3',
+           '--config', str(config))
     assert u.wait(220) == 0, u.output()[-6000:]
     out = u.output()
     m = re.search(r'the estimate is good enough after ([\d.]+) s \(coverage 100 %, largest std '

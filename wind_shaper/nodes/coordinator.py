@@ -84,6 +84,9 @@ class CoordinatorParams:
                                "to a held-plate calibration point; '' = a person carries it there")
     settle_s: float = param(2.0, 'wait after the fans report the commands, before sweeping [s]',
                             low=0.0, high=600.0)
+    hold_still_s: float = param(1.0, 'a held-plate point is recorded once the plate has stayed '
+                                'within its tolerance this long [s] (a motion stage settles '
+                                'sooner than a hand)', low=0.0, high=60.0)
     apply_tolerance: float = param(0.005, 'largest difference between commanded and applied PWM '
                                    'that counts as applied [fraction]', low=0.0, high=1.0)
     apply_timeout_s: float = param(10.0, 'wait at most this long for the fans to report the '
@@ -559,6 +562,10 @@ class CoordinatorNode(Node):
             self._waits.raise_for(reason, '')
         self._waits.check()
         return reason == 'done'
+
+    async def pause(self, seconds: float) -> None:
+        """Let ``seconds`` [s] pass without blocking the executor; no cancel or deadline ends it."""
+        await self._waits.wait(None, seconds, cancellable=False)
 
     async def call(self, client, request, what: str, timeout_s: float):
         """A service call bounded by ``timeout_s`` [s] (and the procedure's deadline)."""

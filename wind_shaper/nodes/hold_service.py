@@ -24,10 +24,13 @@ from ..experiment import check_design
 from ..ros import names
 
 DEFAULT_TOLERANCE_M, DEFAULT_SAMPLES, DEFAULT_TIMEOUT_S = 0.01, 20, 120.0
-#: The plate must stay within the tolerance this long before the point is recorded [s].
-STILL_S = 1.0
 #: Pose rate assumed for the recording's time limit (mocap runs at 100 Hz) [Hz].
 MIN_POSE_HZ = 10.0
+#: No answer leaves sooner than this after its request came [s]. Fast DDS drops a reply when
+#: the server has not yet discovered the caller's reply reader (it waits 100 ms for it), and a
+#: new command's first request follows its discovery at once: a refusal answered at once ("wait
+#: for it", a point refused) was lost on a loaded machine and the command waited out its timeout.
+MIN_ANSWER_S = 2.0
 
 
 class HoldService:
@@ -57,6 +60,14 @@ class HoldService:
         self.node.poke()
 
     async def _handle(self, request: HoldPoint.Request, response: HoldPoint.Response):
+        came = time.monotonic()
+        response = await self._serve(request, response)
+        early = MIN_ANSWER_S - (time.monotonic() - came)
+        if early > 0:
+            await self.node.pause(early)
+        return response
+
+    async def _serve(self, request: HoldPoint.Request, response: HoldPoint.Response):
         node = self.node
         tol = request.tolerance_m if request.tolerance_m > 0 else DEFAULT_TOLERANCE_M
         samples = int(request.samples) if request.samples > 0 else DEFAULT_SAMPLES
@@ -83,6 +94,7 @@ class HoldService:
         self.stillness.clear()
         self._target = (float(request.x), float(request.y), tol)
         where = f'({request.x:+.3f}, {request.y:+.3f}) m'
+        still_s = node.params.hold_still_s
         try:
             node.hold(U)
             await node.command_fans(U)
@@ -94,11 +106,11 @@ class HoldService:
                     raise IterationStopped('failed', f'the plate could not be placed: {moved.message}')
             else:
                 node.get_logger().info(f'hold the plate at {where} (tolerance {100 * tol:.1f} cm)')
-            still = await node.wait_for(lambda: self.stillness.verdict(*self._target, STILL_S) == '',
+            still = await node.wait_for(lambda: self.stillness.verdict(*self._target, still_s) == '',
                                         wait_s)
             if not still:
                 raise IterationStopped('failed', f'the plate was not held still at {where} within '
-                                       f'{wait_s:g} s: {self.stillness.verdict(*self._target, STILL_S)}')
+                                       f'{wait_s:g} s: {self.stillness.verdict(*self._target, still_s)}')
             await node.begin_sweep()
             self._poses, self._strays, self._recording = 0, 0, True
             got = await node.wait_for(lambda: self._poses >= samples or self._strays > 0,

@@ -110,6 +110,35 @@ def _term_elements(model: Term, label: str, null: dict):
     return sl, null_values, size
 
 
+def _block_std(fit, data: FitData, block: float, step: float = 1e-4) -> np.ndarray:
+    """Standard errors of ``fit``'s parameters that allow for a residual correlated in space
+    (a cluster-robust sandwich over square blocks ``block`` [m] wide): what a pattern the model
+    lacks does to one sweep's estimate when it lies under the effect's footprint. Equal to the
+    Gauss-Newton errors on average when the residual is white."""
+    theta = fit.model.theta.copy()
+    idx = np.flatnonzero(fit.mask)
+    base = fit.model(data.U, data.Z)
+    r = data.y - base
+    J = np.empty((len(r), len(idx)))
+    lo, hi = fit.model.bounds.T
+    for c, i in enumerate(idx):
+        h = step * max(1.0, abs(theta[i]))
+        th = theta.copy()
+        th[i] = theta[i] + h if theta[i] + h <= hi[i] else theta[i] - h
+        J[:, c] = (fit.model.with_theta(th)(data.U, data.Z) - base) / (th[i] - theta[i])
+    keys = np.floor(data.Z / block).astype(int)
+    _, blocks = np.unique(keys, axis=0, return_inverse=True)
+    blocks = blocks.ravel()
+    g = int(blocks.max()) + 1
+    if g < 3:
+        return np.full(len(idx), np.nan)
+    score = np.zeros((g, len(idx)))
+    np.add.at(score, blocks, J * r[:, None])
+    bread = np.linalg.pinv(J.T @ J)
+    cov = bread @ (score.T @ score) @ bread * g / (g - 1)
+    return np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
+
 def _signal(with_effect: Term, without: Term, data: FitData) -> np.ndarray:
     """RMS difference [N] of the two models' predictions per sweep (sorted sweep ids)."""
     diff = with_effect(data.U, data.Z) - without(data.U, data.Z)
@@ -138,7 +167,8 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
                         previous: Term, *, tolerance: float = 0.1, max_z: float = 3.0,
                         max_disagree: float = 0.25, min_p: float = 1e-3,
                         min_heldout_share: float = 2 / 3, min_signal: float = 0.02,
-                        min_sweeps: int = 3, max_nfev: int = 20) -> SweepCheck:
+                        min_sweeps: int = 3, max_nfev: int = 20,
+                        block: float | None = None) -> SweepCheck:
     """Check the term ``label`` of ``model`` (fitted on ``train``) sweep by sweep; ``heldout``
     is the diagnosis's ``HeldOut``, ``previous`` the model before the term was added."""
     sl, null_values, size = _term_elements(model, label, null)
@@ -155,8 +185,11 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
     for i, s in enumerate(sweeps):
         if not informative[i]:
             continue
-        fit = fit_model(model, train.subset(train.sweep == s), free=free, max_nfev=max_nfev)
+        part = train.subset(train.sweep == s)
+        fit = fit_model(model, part, free=free, max_nfev=max_nfev)
         values[i], stds[i] = fit.theta, fit.theta_std
+        if block:
+            stds[i] = np.fmax(stds[i], _block_std(fit, part, block))
     # a sweep's error: its standard error, plus a tolerance for what the rest of the model gets
     # slightly wrong in that sweep (a fraction of the effect's size)
     sigma = np.sqrt(np.nan_to_num(stds, nan=np.inf) ** 2 + (tolerance * size) ** 2)

@@ -148,7 +148,7 @@ class Diagnosis:
                  max_effects: int = 3, refine: int = 2, max_nfev: int = 40,
                  noise_sd: float | None = None, min_spread: float = 0.10,
                  check_sweeps: bool = True, describe_outside: bool = True,
-                 check_min_sweeps: int = 4):
+                 check_min_sweeps: int = 4, check_block: float | None = None):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -158,6 +158,7 @@ class Diagnosis:
         self.check_sweeps = check_sweeps
         self.describe_outside = describe_outside
         self.check_min_sweeps = check_min_sweeps
+        self.check_block = check_block
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -342,7 +343,8 @@ class Diagnosis:
                 without = self._rebuild([o for o in kept if o is not t])
                 t.check = check_across_sweeps(final.model, t.candidate.label, t.candidate.null,
                                               self.train_, self.heldout_, without.model,
-                                              min_sweeps=self.check_min_sweeps)
+                                              min_sweeps=self.check_min_sweeps,
+                                              block=self.check_block)
                 if not t.check.passed:
                     failed.append(t)
             if not failed:
