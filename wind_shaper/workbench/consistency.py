@@ -29,7 +29,7 @@ from ..model import Term, param_slices, term_label
 from .data import FitData
 from .fitting import fit_model
 
-__all__ = ['SweepCheck', 'check_across_sweeps', 'judge_spread']
+__all__ = ['SweepCheck', 'check_across_sweeps', 'check_across_space', 'judge_spread']
 
 
 @dataclass
@@ -110,35 +110,6 @@ def _term_elements(model: Term, label: str, null: dict):
     return sl, null_values, size
 
 
-def _block_std(fit, data: FitData, block: float, step: float = 1e-4) -> np.ndarray:
-    """Standard errors of ``fit``'s parameters that allow for a residual correlated in space
-    (a cluster-robust sandwich over square blocks ``block`` [m] wide): what a pattern the model
-    lacks does to one sweep's estimate when it lies under the effect's footprint. Equal to the
-    Gauss-Newton errors on average when the residual is white."""
-    theta = fit.model.theta.copy()
-    idx = np.flatnonzero(fit.mask)
-    base = fit.model(data.U, data.Z)
-    r = data.y - base
-    J = np.empty((len(r), len(idx)))
-    lo, hi = fit.model.bounds.T
-    for c, i in enumerate(idx):
-        h = step * max(1.0, abs(theta[i]))
-        th = theta.copy()
-        th[i] = theta[i] + h if theta[i] + h <= hi[i] else theta[i] - h
-        J[:, c] = (fit.model.with_theta(th)(data.U, data.Z) - base) / (th[i] - theta[i])
-    keys = np.floor(data.Z / block).astype(int)
-    _, blocks = np.unique(keys, axis=0, return_inverse=True)
-    blocks = blocks.ravel()
-    g = int(blocks.max()) + 1
-    if g < 3:
-        return np.full(len(idx), np.nan)
-    score = np.zeros((g, len(idx)))
-    np.add.at(score, blocks, J * r[:, None])
-    bread = np.linalg.pinv(J.T @ J)
-    cov = bread @ (score.T @ score) @ bread * g / (g - 1)
-    return np.sqrt(np.clip(np.diag(cov), 0.0, None))
-
-
 def _signal(with_effect: Term, without: Term, data: FitData) -> np.ndarray:
     """RMS difference [N] of the two models' predictions per sweep (sorted sweep ids)."""
     diff = with_effect(data.U, data.Z) - without(data.U, data.Z)
@@ -167,8 +138,7 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
                         previous: Term, *, tolerance: float = 0.1, max_z: float = 3.0,
                         max_disagree: float = 0.25, min_p: float = 1e-3,
                         min_heldout_share: float = 2 / 3, min_signal: float = 0.02,
-                        min_sweeps: int = 3, max_nfev: int = 20,
-                        block: float | None = None) -> SweepCheck:
+                        min_sweeps: int = 3, max_nfev: int = 20) -> SweepCheck:
     """Check the term ``label`` of ``model`` (fitted on ``train``) sweep by sweep; ``heldout``
     is the diagnosis's ``HeldOut``, ``previous`` the model before the term was added."""
     sl, null_values, size = _term_elements(model, label, null)
@@ -185,11 +155,8 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
     for i, s in enumerate(sweeps):
         if not informative[i]:
             continue
-        part = train.subset(train.sweep == s)
-        fit = fit_model(model, part, free=free, max_nfev=max_nfev)
+        fit = fit_model(model, train.subset(train.sweep == s), free=free, max_nfev=max_nfev)
         values[i], stds[i] = fit.theta, fit.theta_std
-        if block:
-            stds[i] = np.fmax(stds[i], _block_std(fit, part, block))
     # a sweep's error: its standard error, plus a tolerance for what the rest of the model gets
     # slightly wrong in that sweep (a fraction of the effect's size)
     sigma = np.sqrt(np.nan_to_num(stds, nan=np.inf) ** 2 + (tolerance * size) ** 2)
@@ -231,3 +198,51 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
         check.reasons.append(f'it improves only {n_better} of the {n_held} held-out sweeps it touches')
     check.passed = not check.reasons
     return check
+
+
+def check_across_space(model: Term, label: str, null: dict, train: FitData, previous: Term, *,
+                       tolerance: float = 0.1, max_z: float = 3.0, min_signal: float = 0.02,
+                       max_nfev: int = 20) -> str:
+    """Does the term ``label`` of ``model`` hold on both sides of its footprint? '' if so,
+    else why not, in words.
+
+    A real effect has one value wherever it is seen; a term that patches a pattern off to one
+    side of its footprint (a blocked patch of the straightener beside a fan's hub, read as
+    that jet's elongation or width) fits one side and not the other. The footprint is where
+    the effect changes the prediction by ``min_signal`` [N] or more; it is cut through its
+    centre (weighted by the change squared) along x and along y, and the term's magnitude
+    parameters (see ``check_across_sweeps``) are refitted on every training cell of each side,
+    the rest of the model held. A cut fails when the two sides' values differ by more than
+    ``max_z`` times their standard errors and ``tolerance`` x the effect's size in quadrature;
+    a side the effect barely reaches (under a quarter of the other's signal) is not judged."""
+    sl, null_values, size = _term_elements(model, label, null)
+    names = list(model.theta_names[sl])
+    diff = model(train.U, train.Z) - previous(train.U, train.Z)
+    foot = np.abs(diff) >= min_signal
+    if foot.sum() < 20:
+        return ''
+    weight = diff[foot] ** 2
+    centre = np.average(train.Z[foot], axis=0, weights=weight)
+    free = np.zeros(len(model.theta), bool)
+    free[sl] = True
+    magnitude = np.isfinite(null_values) if np.isfinite(null_values).any() else np.ones(len(names), bool)
+    for axis, word in ((0, 'x'), (1, 'y')):
+        sides, signal = [], []
+        for upper in (False, True):
+            rows = (train.Z[:, axis] >= centre[axis]) if upper else (train.Z[:, axis] < centre[axis])
+            signal.append(float(np.sqrt(np.mean(diff[rows] ** 2))) if rows.any() else 0.0)
+            sides.append(fit_model(model, train.subset(rows), free=free, max_nfev=max_nfev)
+                         if rows.sum() > 2 * free.sum() else None)
+        if None in sides or min(signal) < 0.25 * max(signal):
+            continue
+        a, b = sides
+        sigma = np.sqrt(a.theta_std ** 2 + b.theta_std ** 2 + (tolerance * size) ** 2)
+        z = (np.abs(a.theta - b.theta) / sigma)[magnitude]
+        if np.any(z > max_z):
+            i = int(np.flatnonzero(magnitude)[np.argmax(z)])
+            name = names[i].split('.')[-1].split('__')[-1]
+            return (f'it does not hold on both sides of its footprint: its {name} is '
+                    f'{a.theta[i]:.3g} for {word} < {centre[axis]:+.2f} m and {b.theta[i]:.3g} '
+                    f'beyond ({np.max(z):.1f} standard errors apart): it patches a pattern to one '
+                    f'side')
+    return ''
