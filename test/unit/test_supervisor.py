@@ -272,7 +272,7 @@ def test_a_restarted_node_runs_again(script, supervisors, tmp_path):
 def test_children_die_with_a_killed_supervisor(tmp_path):
     """The parent-death signal: kill -9 the supervisor, its nodes get SIGTERM."""
     runner = tmp_path / 'runner.py'
-    runner.write_text(textwrap.dedent(f'''
+    runner.write_text(textwrap.dedent('''
         import sys, time
         from wind_shaper.supervisor import NodeSpec, Supervisor
         spec = NodeSpec('child', (sys.executable, '-c', 'import time; time.sleep(60)'))

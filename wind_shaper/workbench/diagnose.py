@@ -258,48 +258,9 @@ class Diagnosis:
                            'than once) or give the noise per sample (noise_sd, --noise-sd)')
         self.heldout_.noise_sd = self.noise_sd_
         self.baseline_rmse_, self.baseline_raw_ = self._evaluate(base.model)
-        current, current_rmse = base, self.baseline_rmse_
-        self.steps_, self.rankings_ = [], []
-        accepted: list[str] = []
-        for _ in range(self.max_effects):
-            if current_rmse < self.material * self.noise_sd_:
-                break
-            cands = [c for c in library.candidates(current.model, geometry) if c.name not in accepted]
-            if not cands:
-                break
-            frozen = Frozen(current.model)
-            screened = sorted((self._screen(c, current, current_rmse, frozen) for c in cands),
-                              key=lambda t: t.bic)
-            picks = screened[:self.refine] + [t for t in screened[self.refine:] if t.candidate.refine_always]
-            refined = []
-            for t in picks:
-                trial, fit = self._refine(t, current, current_rmse)
-                self._guard(trial, current_rmse)
-                if trial.passed:  # judge the parameter by its sweep-to-sweep spread as well
-                    trial.std = self._uncertainty(trial, current, fit)
-                    self._guard(trial, current_rmse)
-                refined.append((trial, fit))
-            rest = [t for t in screened if all(t is not p for p in picks)]
-            for t in rest:
-                self._guard(t, current_rmse)
-                if t.passed:  # screened only: may not be reported without a refit
-                    t.passed = False
-                    t.reasons = ['not among the best refined candidates']
-            ranking = sorted([t for t, _ in refined], key=lambda t: t.bic) + rest
-            self.rankings_.append(ranking)
-            passing = [(t, f) for t, f in refined if t.passed]
-            if not passing:
-                break
-            best, fit = min(passing, key=lambda tf: tf[0].bic)
-            polished, fit = self._refine(best, current, current_rmse, data=self.train_, max_nfev=15)
-            polished.std = self._uncertainty(polished, current, fit)
-            polished.passed, polished.reasons, polished.check = True, [], best.check
-            ranking[ranking.index(best)] = polished
-            best = polished
-            best.finding = best.candidate.describe(_node(fit.model, best.candidate.label), best.std)
-            self.steps_.append(best)
-            accepted.append(best.candidate.name)
-            current, current_rmse = fit, best.heldout_rmse
+        self.library_ = library
+        self.steps_, self.rankings_, current, current_rmse = self._select(
+            base, self.baseline_rmse_, set(), self.max_effects)
         self.demoted_ = []
         self.selected_ = list(self.steps_)  # every step of the selection, in order
         if self.check_sweeps and self.steps_:
@@ -325,6 +286,56 @@ class Diagnosis:
                 self.final_.model, self.heldout_, min_gain=self.min_gain)
         self.undecided_ = undecided(self)
         return self
+
+    def _select(self, current: FitResult, current_rmse: float, excluded: set, max_effects: int):
+        """Forward selection from ``current`` (its held-out model error ``current_rmse`` [N]):
+        add the refined candidate with the lowest BIC that passes the guard, up to
+        ``max_effects``, never one named in ``excluded``. Returns (steps, rankings, final fit,
+        its held-out model error)."""
+        geometry = self.geometry_
+        steps, rankings = [], []
+        accepted = set(excluded)
+        for _ in range(max(max_effects, 0)):
+            if current_rmse < self.material * self.noise_sd_:
+                break
+            cands = [c for c in self.library_.candidates(current.model, geometry)
+                     if c.name not in accepted]
+            if not cands:
+                break
+            frozen = Frozen(current.model)
+            screened = sorted((self._screen(c, current, current_rmse, frozen) for c in cands),
+                              key=lambda t: t.bic)
+            picks = screened[:self.refine] + [t for t in screened[self.refine:] if t.candidate.refine_always]
+            refined = []
+            for t in picks:
+                trial, fit = self._refine(t, current, current_rmse)
+                self._guard(trial, current_rmse)
+                if trial.passed:  # judge the parameter by its sweep-to-sweep spread as well
+                    trial.std = self._uncertainty(trial, current, fit)
+                    self._guard(trial, current_rmse)
+                refined.append((trial, fit))
+            rest = [t for t in screened if all(t is not p for p in picks)]
+            for t in rest:
+                self._guard(t, current_rmse)
+                if t.passed:  # screened only: may not be reported without a refit
+                    t.passed = False
+                    t.reasons = ['not among the best refined candidates']
+            ranking = sorted([t for t, _ in refined], key=lambda t: t.bic) + rest
+            rankings.append(ranking)
+            passing = [(t, f) for t, f in refined if t.passed]
+            if not passing:
+                break
+            best, fit = min(passing, key=lambda tf: tf[0].bic)
+            polished, fit = self._refine(best, current, current_rmse, data=self.train_, max_nfev=15)
+            polished.std = self._uncertainty(polished, current, fit)
+            polished.passed, polished.reasons, polished.check = True, [], best.check
+            ranking[ranking.index(best)] = polished
+            best = polished
+            best.finding = best.candidate.describe(_node(fit.model, best.candidate.label), best.std)
+            steps.append(best)
+            accepted.add(best.candidate.name)
+            current, current_rmse = fit, best.heldout_rmse
+        return steps, rankings, current, current_rmse
 
     def _rebuild(self, steps: list) -> FitResult:
         """The baseline model with the effects of ``steps`` added, refitted on the training
@@ -358,11 +369,13 @@ class Diagnosis:
                 worst = min(failed, key=lambda t: t.check.p_value)
             elif (one_sided := self._one_sided(final, kept, withouts)) is not None:
                 worst, reason = one_sided
-                worst.check.passed = False
+                worst.check.passed, worst.check.spread = False, True   # a patch, as below
                 worst.check.reasons.append(reason)
             elif (leaning := self._leans_on_curves(kept)) is not None:
                 worst, reason = leaning
-                worst.check.passed = False
+                # a patch of something else, like a value that does not hold across sweeps:
+                # never promising, and the verdict says the physics is likely outside
+                worst.check.passed, worst.check.spread = False, True
                 worst.check.reasons.append(reason)
             elif self.demoted_:
                 # an effect chosen beside one now demoted must earn its place without it: on its
