@@ -143,7 +143,10 @@ class Diagnosis:
     sample, when the held-out sweeps are too short to estimate it (they must revisit places);
     min_spread [fraction of full PWM]: the least command spread (``SweepSet.command_spread``)
     at which findings are reported (0 switches the check off); check_sweeps: check every effect
-    the selection added sweep by sweep before naming it (``consistency``).
+    the selection added sweep by sweep before naming it (``consistency``); check_min_sweeps:
+    training sweeps that must show an effect for that check; check_tolerance: the share of an
+    effect's size a sweep's value may be off besides its standard error; check_space: cut a
+    jet's shape through its footprint (``_one_sided``).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
