@@ -24,17 +24,10 @@ from wind_shaper.ros import names, qos  # noqa: E402
 from wind_shaper.ros.convert import stamp_to_seconds  # noqa: E402
 from wind_shaper.sim import NetFtFaults, SimNetFtServer  # noqa: E402
 
+from waiting import wait_for  # noqa: E402
+
 pytestmark = pytest.mark.ros
 CONFIG = Path(__file__).resolve().parents[2] / 'config' / 'force_sensor.yaml'
-
-
-def wait_for(predicate, timeout_s=3.0, interval_s=0.01):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
 
 
 def source(t):

@@ -72,7 +72,7 @@ class SweepCheck:
             spread = np.where(np.isfinite(self.null), spread, -np.inf)
         worst = int(np.nanargmax(spread))
         lo, hi = np.nanmin(v[:, worst]), np.nanmax(v[:, worst])
-        name = self.names[worst].split('.')[-1].split('__')[-1]
+        name = _short(self.names[worst])
         return f'its {name} runs from {lo:.3g} to {hi:.3g} across the sweeps'
 
     def to_json(self) -> dict:
@@ -108,6 +108,19 @@ def _term_elements(model: Term, label: str, null: dict):
             size[part] = np.linalg.norm(pooled[part])
         i += h.size
     return sl, null_values, size
+
+
+def _magnitude(null_values: np.ndarray) -> np.ndarray:
+    """Which elements carry the effect's magnitude: those with a no-effect value (a gain, a
+    shift), not those that only shape it (an elongation's direction); all of a term without
+    any null value."""
+    finite = np.isfinite(null_values)
+    return finite if finite.any() else np.ones(len(null_values), bool)
+
+
+def _short(name: str) -> str:
+    """A parameter element's own name, without the path of terms it sits in."""
+    return name.split('.')[-1].split('__')[-1]
 
 
 def _signal(with_effect: Term, without: Term, data: FitData) -> np.ndarray:
@@ -164,7 +177,7 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
     # The effect's magnitude is what must hold: the parameters with a no-effect value (a gain,
     # a shift), not those that only shape it (an elongation's direction, undefined near no
     # elongation); a term without any null value is checked on all of its parameters.
-    magnitude = np.isfinite(null_values) if np.isfinite(null_values).any() else np.ones(len(names), bool)
+    magnitude = _magnitude(null_values)
     z = z[:, magnitude]
     n_inf = int(informative.sum())
     disagree, p_value, holds = judge_spread(z, informative, max((n_inf - 1) * int(magnitude.sum()), 1),
@@ -225,7 +238,7 @@ def check_across_space(model: Term, label: str, null: dict, train: FitData, prev
     centre = np.average(train.Z[foot], axis=0, weights=weight)
     free = np.zeros(len(model.theta), bool)
     free[sl] = True
-    magnitude = np.isfinite(null_values) if np.isfinite(null_values).any() else np.ones(len(names), bool)
+    magnitude = _magnitude(null_values)
     for axis, word in ((0, 'x'), (1, 'y')):
         sides, signal = [], []
         for upper in (False, True):
@@ -240,7 +253,7 @@ def check_across_space(model: Term, label: str, null: dict, train: FitData, prev
         z = (np.abs(a.theta - b.theta) / sigma)[magnitude]
         if np.any(z > max_z):
             i = int(np.flatnonzero(magnitude)[np.argmax(z)])
-            name = names[i].split('.')[-1].split('__')[-1]
+            name = _short(names[i])
             return (f'it does not hold on both sides of its footprint: its {name} is '
                     f'{a.theta[i]:.3g} for {word} < {centre[axis]:+.2f} m and {b.theta[i]:.3g} '
                     f'beyond ({np.max(z):.1f} standard errors apart): it patches a pattern to one '

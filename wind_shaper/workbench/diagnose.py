@@ -262,8 +262,7 @@ class Diagnosis:
         self.heldout_.noise_sd = self.noise_sd_
         self.baseline_rmse_, self.baseline_raw_ = self._evaluate(base.model)
         self.library_ = library
-        self.steps_, self.rankings_, current, current_rmse = self._select(
-            base, self.baseline_rmse_, set(), self.max_effects)
+        self.steps_, self.rankings_, current, current_rmse = self._select(base, self.baseline_rmse_)
         self.demoted_ = []
         self.selected_ = list(self.steps_)  # every step of the selection, in order
         if self.check_sweeps and self.steps_:
@@ -290,15 +289,14 @@ class Diagnosis:
         self.undecided_ = undecided(self)
         return self
 
-    def _select(self, current: FitResult, current_rmse: float, excluded: set, max_effects: int):
+    def _select(self, current: FitResult, current_rmse: float):
         """Forward selection from ``current`` (its held-out model error ``current_rmse`` [N]):
         add the refined candidate with the lowest BIC that passes the guard, up to
-        ``max_effects``, never one named in ``excluded``. Returns (steps, rankings, final fit,
-        its held-out model error)."""
+        ``max_effects``. Returns (steps, rankings, final fit, its held-out model error)."""
         geometry = self.geometry_
         steps, rankings = [], []
-        accepted = set(excluded)
-        for _ in range(max(max_effects, 0)):
+        accepted: set[str] = set()
+        for _ in range(self.max_effects):
             if current_rmse < self.material * self.noise_sd_:
                 break
             cands = [c for c in self.library_.candidates(current.model, geometry)
@@ -372,18 +370,15 @@ class Diagnosis:
                     failed.append(t)
             if failed:
                 worst = min(failed, key=lambda t: t.check.p_value)
-            elif (one_sided := self._one_sided(final, kept, withouts)) is not None:
-                worst, reason = one_sided
-                worst.check.passed, worst.check.spread = False, True   # a patch, as below
-                worst.check.reasons.append(reason)
-            elif (leaning := self._leans_on_curves(kept)) is not None:
-                worst, reason = leaning
+            else:
+                refused = self._one_sided(final, kept, withouts) or self._leans_on_curves(kept)
+                if refused is None:
+                    break
+                worst, reason = refused
                 # a patch of something else, like a value that does not hold across sweeps:
                 # never promising, and the verdict says the physics is likely outside
                 worst.check.passed, worst.check.spread = False, True
                 worst.check.reasons.append(reason)
-            else:
-                break
             worst.passed, worst.reasons = False, list(worst.check.reasons)
             self.demoted_.append(worst)
             kept.remove(worst)

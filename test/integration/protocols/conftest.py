@@ -3,6 +3,7 @@ import threading
 import time
 
 import pytest
+from waiting import wait_for as _wait_for
 
 
 @pytest.fixture(autouse=True)
@@ -16,16 +17,6 @@ def no_leaked_threads():
             return
         time.sleep(0.02)
     pytest.fail(f'threads left running: {[t.name for t in leaked]}')
-
-
-def _wait_for(predicate, timeout_s=3.0, interval_s=0.01):
-    """Poll predicate until true or timeout; returns its last value."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value or time.monotonic() >= deadline:
-            return value
-        time.sleep(interval_s)
 
 
 @pytest.fixture

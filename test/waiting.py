@@ -1,4 +1,5 @@
-"""Polling for the node tests: wait until a condition holds, bounded."""
+"""Polling for the node and loopback tests: wait until a condition holds, bounded (test/ is on
+the import path: pytest puts the folder of test/conftest.py there)."""
 import time
 
 
