@@ -234,6 +234,15 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
                    'with the pooled fit'], rows,
                   heading=f'{t.candidate.title} across sweeps (pooled '
                           f'{", ".join(f"{v:.4g}" for v in c.pooled)}): {verdict}')
+        if c.beside is not None:
+            b = c.beside
+            shown = [labels[i] if i < len(labels) else i for i in np.flatnonzero(c.informative)]
+            rep.table(['training sweep', f'{", ".join(b.names)} with the discrepancy'],
+                      [[name, ', '.join(f'{v:.4g} ± {e:.2g}' for v, e in zip(b.values[k], b.stds[k]))]
+                       for k, name in enumerate(shown)],
+                      heading=f'{t.candidate.title} across sweeps, refitted jointly with a discrepancy '
+                              f'model (mean {", ".join(f"{v:.4g}" for v in b.mean)}): '
+                              + ('holds' if b.passed else 'refused: ' + '; '.join(b.reasons)))
     every = data.fit_data(d.cell)  # all sweeps: the structure needs many commands
     analyses = {'before': analyse_residuals(d.baseline_.model, every, geometry)}
     if d.steps_:

@@ -51,7 +51,7 @@ import numpy as np
 
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from .consistency import SweepCheck, check_across_space, check_across_sweeps
+from .consistency import SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy
 from .data import FitData, SweepSet
 from .discrepancy import describe_outside, outside_text
 from .enough import undecided
@@ -146,7 +146,9 @@ class Diagnosis:
     the selection added sweep by sweep before naming it (``consistency``); check_min_sweeps:
     training sweeps that must show an effect for that check; check_tolerance: the share of an
     effect's size a sweep's value may be off besides its standard error; check_space: cut a
-    jet's shape through its footprint (``_one_sided``).
+    jet's shape through its footprint (``_one_sided``); check_beside: give an effect whose
+    values spread across sweeps a second check with a discrepancy model beside it
+    (``_beside_discrepancy``).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
@@ -156,7 +158,7 @@ class Diagnosis:
                  noise_sd: float | None = None, min_spread: float = 0.10,
                  check_sweeps: bool = True, describe_outside: bool = True,
                  check_min_sweeps: int = 4, check_tolerance: float = 0.1,
-                 check_space: bool = True):
+                 check_space: bool = True, check_beside: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -168,6 +170,7 @@ class Diagnosis:
         self.check_min_sweeps = check_min_sweeps
         self.check_tolerance = check_tolerance
         self.check_space = check_space
+        self.check_beside = check_beside
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -366,6 +369,7 @@ class Diagnosis:
                                               self.train_, self.heldout_, without.model,
                                               min_sweeps=self.check_min_sweeps,
                                               tolerance=self.check_tolerance)
+                self._beside_discrepancy(t, final, without)
                 if not t.check.passed:
                     failed.append(t)
             if failed:
@@ -386,9 +390,26 @@ class Diagnosis:
         for t in kept:  # the parameters as the final model has them
             node = _node(final.model, t.candidate.label)
             t.params = t.candidate.params(node)
-            t.finding = t.candidate.describe(node, t.std)
+            t.finding = t.candidate.describe(node, t.std) + _beside_text(t)
         self.steps_ = kept
         return final
+
+    def _beside_discrepancy(self, t: Trial, final: FitResult, without: FitResult) -> None:
+        """Give an effect whose values spread across sweeps its second chance: the same check
+        with a discrepancy model beside it (``consistency.check_beside_discrepancy``), for a
+        real effect perturbed by physics the library lacks. Only the spread is forgiven: an
+        effect too few sweeps show, or that helps too few held-out sweeps, stays refused."""
+        c = t.check
+        if not (self.check_beside and c.spread and not c.heldout_short):
+            return
+        c.beside = check_beside_discrepancy(final.model, t.candidate.label, t.candidate.null,
+                                            self.train_, self.heldout_, without.model,
+                                            self.geometry_, c.informative,
+                                            tolerance=self.check_tolerance)
+        if c.beside.passed:
+            c.passed, c.spread, c.reasons = True, False, []
+        else:
+            c.reasons += c.beside.reasons
 
     def _one_sided(self, final: FitResult, kept: list, withouts: list):
         """(finding, why) for the first change of a jet's shape that does not hold on both
@@ -572,6 +593,16 @@ def _node(model, label):
         if term_label(n) == label:
             return n
     return None
+
+
+def _beside_text(t: Trial) -> str:
+    """What a finding that holds only beside a discrepancy model must say."""
+    b = t.check.beside if t.check is not None else None
+    if b is None or not b.passed:
+        return ''
+    return (f' It holds across sweeps only with a discrepancy model beside it (something the library '
+            f'lacks perturbs it sweep by sweep); estimated jointly with that model, its '
+            f'{", ".join(t.params)} {"is" if len(t.params) == 1 else "are"} {_fmt(b.mean)}.')
 
 
 def _fmt(value) -> str:

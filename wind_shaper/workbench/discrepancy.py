@@ -25,8 +25,8 @@ from ..model import Discrepancy, Term, command_features, feature_words
 from .data import FitData
 from .residuals import disc_grid
 
-__all__ = ['DiscrepancyFit', 'fit_discrepancy', 'describe_discrepancy', 'describe_map', 'disc_grid',
-           'describe_outside', 'outside_text']
+__all__ = ['DiscrepancyFit', 'fit_discrepancy', 'discrepancy_basis', 'describe_discrepancy',
+           'describe_map', 'disc_grid', 'describe_outside', 'outside_text']
 
 
 @dataclass
@@ -186,6 +186,25 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
     out.cv_rmse = float(np.sqrt(cv))
     out.train_rms = float(np.sqrt(np.mean(r ** 2)))
     return out
+
+
+def discrepancy_basis(data: FitData, geometry: TunnelGeometry, residual: np.ndarray, *,
+                      widths=(0.06, 0.10), spacing: float = 1.25, fan_radius: float = 0.15,
+                      features=('one', 'thrust', 'balance')):
+    """The discrepancy's columns on ``data`` (bumps x the whole-tunnel ``features`` and every
+    enabled fan's thrust near that fan), at the bump width [m] whose evidence for ``residual``
+    [N] is highest, as a prior for other fits: (Phi (n, p), the prior precision of each column
+    [1/N^2], the noise sd [N] the evidence chose)."""
+    from threadpoolctl import threadpool_limits
+    names = list(features) + [f'fan:{f.name}' for f in geometry.fans.fans if f.enabled]
+    best = None
+    with threadpool_limits(1, user_api='blas'):  # small matrices: threads only contend
+        for width in widths:
+            _, Phi, groups, _ = _design(data, geometry, width, spacing, names, len(features), fan_radius)
+            _, log_ev, noise, alpha = _evidence_fit(Phi, residual, groups)
+            if best is None or log_ev > best[0]:
+                best = (log_ev, Phi, alpha[groups], noise)
+    return best[1], best[2], best[3]
 
 
 def _shares(term: Discrepancy, commands: np.ndarray, grid: np.ndarray) -> tuple[dict, np.ndarray]:

@@ -60,3 +60,34 @@ def test_a_real_elongated_jet_holds_on_both_sides_of_its_footprint(diagnosed):
     without = d._rebuild([])
     assert check_across_space(d.final_.model, t.candidate.label, t.candidate.null, d.train_,
                               without.model) == ''
+
+
+def test_a_tilted_fan_beside_a_blocked_patch_holds_beside_a_discrepancy(wb_setup, reference):
+    # the blocked patch perturbs LM2's landing offset differently in every sweep (4 of 7 sweeps
+    # disagree alone); refitted jointly with a discrepancy model the sweeps agree again
+    d = _diagnose(wb_setup, reference, ('honeycomb_blockage', 'tilted_fan'), 100)
+    _assert_nothing_wrong(d, 'tilted_fan')
+    (t,) = d.steps_
+    assert t.candidate.name == 'fan_shift[LM2]'
+    beside = t.check.beside
+    assert beside is not None and beside.passed, beside
+    # the joint estimate is nearer the truth (4 cm along x) than the pooled fit the patch biases
+    _, truth = candidate_for_hidden_effect(make_effect('tilted_fan'))
+    assert abs(beside.mean[0] - truth['shift'][0]) < abs(t.params['shift'][0] - truth['shift'][0])
+    assert 'only with a discrepancy model beside it' in d.summary()
+
+
+def test_beside_a_discrepancy_a_weak_fan_holds_and_a_patch_does_not(wb_setup, reference):
+    # the stand's wake over HM1 perturbs HM2's gain in one sweep (alone: chance of the spread
+    # 4e-4) and reads as offsets of LM2's and HM1's jets; beside a discrepancy model HM2's gain
+    # holds, LM2's offset predicts the held-out sweeps no better than a discrepancy without it,
+    # and HM1's shrinks to a quarter of its size
+    d = _diagnose(wb_setup, reference, ('stand_wake', 'weak_fan'), 105)
+    _assert_nothing_wrong(d, 'weak_fan')
+    (t,) = d.steps_
+    assert t.candidate.name == 'fan_gain[HM2]' and t.check.beside.passed
+    refused = {t.candidate.name: t for t in d.demoted_}
+    assert 'does as well without it' in refused['fan_shift[LM2]'].check.reasons[-1]
+    assert 'the discrepancy takes up what it explained' in refused['fan_shift[HM1]'].check.reasons[-1]
+    for name in ('fan_shift[LM2]', 'fan_shift[HM1]'):
+        assert not refused[name].check.beside.passed
