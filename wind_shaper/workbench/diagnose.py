@@ -70,8 +70,8 @@ MIN_SWEEPS = 6
 _HELD = re.compile(r'(^|__)thrust(_higher|_lower)?\[0\]$')
 
 
-#: The candidate families that change a jet's footprint shape (checked on both sides of it).
-SHAPE_FAMILIES = ('fan_width', 'fan_elongation', 'fan_shape')
+#: The candidate families that change one fan's jet (checked on both sides of its footprint).
+ONE_JET_FAMILIES = ('fan_gain', 'fan_shift', 'fan_width', 'fan_elongation', 'fan_shape')
 
 
 def fit_mask(model: Term) -> np.ndarray:
@@ -390,7 +390,7 @@ class Diagnosis:
         for t in kept:  # the parameters as the final model has them
             node = _node(final.model, t.candidate.label)
             t.params = t.candidate.params(node)
-            t.finding = t.candidate.describe(node, t.std) + _beside_text(t)
+            t.finding = t.candidate.describe(node, t.std) + _beside_text(t, final.model)
         self.steps_ = kept
         return final
 
@@ -412,15 +412,18 @@ class Diagnosis:
             c.reasons += c.beside.reasons
 
     def _one_sided(self, final: FitResult, kept: list, withouts: list):
-        """(finding, why) for the first change of a jet's shape that does not hold on both
-        sides of its footprint (``consistency.check_across_space``), or None. Only shapes are
-        cut: a patch that passes a fixed share of the flow beside a hub changes that jet the
-        same way in every sweep, so the check across sweeps cannot refuse it; a gain or a
-        whole-tunnel effect would fail the cut for any pattern the library lacks on one side."""
+        """(finding, why) for the first change of one jet (its gain, landing point, width or
+        shape), or effect that held only beside a discrepancy, that does not hold on both sides
+        of its footprint (``consistency.check_across_space``), or None. A patch that passes a
+        fixed share of the flow beside a hub, or a stand's wake across one jet, changes that jet
+        the same way in every sweep, so the check across sweeps cannot refuse it; the two sides
+        of a real change of that jet agree. Other whole-tunnel effects are not cut: they would
+        fail for any pattern the library lacks on one side (swirl beside a warm wall)."""
         if not self.check_space:
             return None
         for t, without in zip(kept, withouts):
-            if t.candidate.family not in SHAPE_FAMILIES:
+            rescued = t.check.beside is not None and t.check.beside.passed
+            if t.candidate.family not in ONE_JET_FAMILIES and not rescued:
                 continue
             why = check_across_space(final.model, t.candidate.label, t.candidate.null, self.train_,
                                      without.model, tolerance=self.check_tolerance)
@@ -595,14 +598,23 @@ def _node(model, label):
     return None
 
 
-def _beside_text(t: Trial) -> str:
-    """What a finding that holds only beside a discrepancy model must say."""
+def _beside_text(t: Trial, model: Term) -> str:
+    """What a finding that holds only beside a discrepancy model must say, with the effect as
+    estimated jointly with that model (``model``: the final model the finding sits in)."""
     b = t.check.beside if t.check is not None else None
     if b is None or not b.passed:
         return ''
-    return (f' It holds across sweeps only with a discrepancy model beside it (something the library '
-            f'lacks perturbs it sweep by sweep); estimated jointly with that model, its '
-            f'{", ".join(t.params)} {"is" if len(t.params) == 1 else "are"} {_fmt(b.mean)}.')
+    sl = next(sl for node, sl in param_slices(model) if term_label(node) == t.candidate.label)
+    theta = np.array(model.theta, float)
+    theta[sl] = b.mean
+    node = _node(model.with_theta(theta), t.candidate.label)
+    std, i = {}, 0
+    for h in node._free():
+        std[h.name] = b.mean_std[i:i + h.size].tolist()
+        i += h.size
+    joint = t.candidate.describe(node, std)
+    return (f'. It holds across sweeps only with a discrepancy model beside it (something the '
+            f'library lacks perturbs it sweep by sweep); estimated jointly with that model: {joint}')
 
 
 def _fmt(value) -> str:
