@@ -27,7 +27,9 @@ from scipy.stats import chi2
 
 from ..model import Term, param_slices, term_label
 from .data import FitData
+from .discrepancy import discrepancy_basis, fit_discrepancy
 from .fitting import fit_model
+from .wording import values_text
 
 __all__ = ['SweepCheck', 'BesideCheck', 'check_across_sweeps', 'check_beside_discrepancy',
            'check_across_space', 'judge_spread']
@@ -345,7 +347,6 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
     runs (the wake is narrower than the discrepancy's bumps) but keeps less of its size or
     clears less of the held-out bar; the thresholds are set so that none of those passes.
     Forces [N]."""
-    from .discrepancy import discrepancy_basis, fit_discrepancy
     sl, null_values, size = _term_elements(model, label, null)
     names = list(model.theta_names[sl])
     pooled = model.theta[sl]
@@ -388,7 +389,7 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
                            f'({out.disagree} of {len(values)} sweeps disagree; chance of so much '
                            f'spread {p_value:.1g})')
     elif out.kept_share < min_share or z_null < min_z:
-        out.reasons.append(f'beside a discrepancy model it shrinks to {_values_text(centre)} '
+        out.reasons.append(f'beside a discrepancy model it shrinks to {values_text(centre)} '
                            f'({100 * out.kept_share:.0f} % of its distance from no effect, '
                            f'{z_null:.1f} standard errors): the discrepancy takes up what it explained')
     else:
@@ -404,7 +405,3 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
     out.passed = not out.reasons
     return out
 
-
-def _values_text(values: np.ndarray) -> str:
-    v = np.atleast_1d(values)
-    return f'{v[0]:.3g}' if len(v) == 1 else '(' + ', '.join(f'{x:.3g}' for x in v) + ')'

@@ -60,7 +60,7 @@ from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
-from .wording import _bic_text, _change_text, drop_text
+from .wording import _bic_text, _change_text, drop_text, values_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
 
@@ -84,13 +84,18 @@ def candidate_std(fit: FitResult, label: str) -> dict:
     std_all = fit.std_of()
     for node, sl in param_slices(fit.model):
         if term_label(node) == label:
-            names = [h for h in node._free()]
-            out, i = {}, sl.start
-            for h in names:
-                out[h.name] = std_all[i:i + h.size].tolist()
-                i += h.size
-            return out
+            return _by_parameter(node, std_all[sl])
     return {}
+
+
+def _by_parameter(node: Term, flat) -> dict:
+    """{parameter: its elements} of a term's free parameters laid out flat in ``flat`` (in
+    ``model.theta`` order)."""
+    out, i = {}, 0
+    for h in node._free():
+        out[h.name] = np.asarray(flat[i:i + h.size], float).tolist()
+        i += h.size
+    return out
 
 
 @dataclass
@@ -466,7 +471,7 @@ class Diagnosis:
             return None
         _, t, name, value, value_held = worst
         return t, (f'it leans on the refitted thrust curves: against the curves as commissioned its '
-                   f'{name} is {_fmt(value_held)}, not {_fmt(value)} (a pattern the library lacks '
+                   f'{name} is {values_text(value_held)}, not {values_text(value)} (a pattern the library lacks '
                    f'pulls its group\'s curve and this fan only looks different)')
 
     def _uncertainty(self, t: Trial, previous: FitResult, fit: FitResult) -> dict:
@@ -479,13 +484,9 @@ class Diagnosis:
             jk = jackknife_std(fit.model, self.train_, np.arange(sl.start, sl.stop), max_nfev=10)
         except FitError:
             return t.std
-        node = _node(fit.model, t.candidate.label)
-        out, i = {}, 0
-        for h in node._free():
-            gn = np.asarray(t.std.get(h.name, [np.nan] * h.size), float)
-            out[h.name] = np.fmax(gn, jk[i:i + h.size]).tolist()
-            i += h.size
-        return out
+        jk = _by_parameter(_node(fit.model, t.candidate.label), jk)
+        return {name: np.fmax(np.asarray(t.std.get(name, [np.nan] * len(v)), float), v).tolist()
+                for name, v in jk.items()}
 
     # -- results ------------------------------------------------------------------------------
     @property
@@ -608,15 +609,7 @@ def _beside_text(t: Trial, model: Term) -> str:
     theta = np.array(model.theta, float)
     theta[sl] = b.mean
     node = _node(model.with_theta(theta), t.candidate.label)
-    std, i = {}, 0
-    for h in node._free():
-        std[h.name] = b.mean_std[i:i + h.size].tolist()
-        i += h.size
-    joint = t.candidate.describe(node, std)
+    joint = t.candidate.describe(node, _by_parameter(node, b.mean_std))
     return (f'. It holds across sweeps only with a discrepancy model beside it (something the '
             f'library lacks perturbs it sweep by sweep); estimated jointly with that model: {joint}')
 
-
-def _fmt(value) -> str:
-    v = np.atleast_1d(np.asarray(value, float))
-    return f'{v[0]:.3g}' if len(v) == 1 else '(' + ', '.join(f'{x:.3g}' for x in v) + ')'

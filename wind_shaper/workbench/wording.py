@@ -1,7 +1,9 @@
-"""Numbers of the diagnosis in words: a held-out error's change, a BIC change."""
+"""Numbers of the diagnosis in words: a held-out error's change, a BIC change, a parameter's value."""
 from __future__ import annotations
 
-__all__ = ['drop_text']
+import numpy as np
+
+__all__ = ['drop_text', 'values_text']
 
 
 def _change_text(gain: float) -> str:
@@ -29,3 +31,9 @@ def drop_text(gain: float) -> str:
     if abs(pct) < 0.5:
         return '0 %'
     return f'{pct:.0f} % lower' if pct > 0 else f'{-pct:.0f} % higher'
+
+
+def values_text(value) -> str:
+    """A parameter's value(s), 3 significant digits: '0.955' or '(0.047, -0.003)'."""
+    v = np.atleast_1d(np.asarray(value, float))
+    return f'{v[0]:.3g}' if len(v) == 1 else '(' + ', '.join(f'{x:.3g}' for x in v) + ')'
