@@ -16,7 +16,7 @@ from .fan_effects import (FanCurve, FanElongation, FanGain, FanShape, FanShift, 
                           FanWrapper)
 from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
                            SwirlQuadratic, WallLayer)
-from .discrepancy import MODE_NAMES, Discrepancy, FieldFormula, command_features, feature_words
+from .discrepancy import MODE_NAMES, CommandScale, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_error, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
 from .calibration import CalibrationPlan, ModelFit, collect_calibration, fit_model
@@ -37,7 +37,7 @@ __all__ = [
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
     'WallLayer',
     # discrepancy: what the library does not explain, without physics
-    'Discrepancy', 'FieldFormula', 'command_features', 'feature_words', 'MODE_NAMES',
+    'Discrepancy', 'FieldFormula', 'CommandScale', 'command_features', 'feature_words', 'MODE_NAMES',
     # modelfile: model files
     'save_model', 'load_model', 'model_error', 'model_from_text', 'FORMAT_VERSION',
     # plugins: user terms, families and simulator effects

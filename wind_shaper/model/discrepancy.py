@@ -29,7 +29,8 @@ from ..core.errors import ConfigError
 from ..core.geometry import FanArray
 from .terms import Term, _batch, register_term
 
-__all__ = ['Discrepancy', 'FieldFormula', 'command_features', 'feature_words', 'MODE_NAMES']
+__all__ = ['Discrepancy', 'FieldFormula', 'CommandScale', 'command_features', 'feature_words',
+           'MODE_NAMES']
 
 _GLOBAL_FEATURES = ('one', 'thrust', 'balance')
 
@@ -169,6 +170,28 @@ class Discrepancy(_ModeSum):
     def __repr__(self):
         return (f'Discrepancy({len(self.centres)} bumps of {100 * self.width:.0f} cm x '
                 f'[{", ".join(self.features)}])')
+
+
+@register_term
+class CommandScale(_ModeSum):
+    """A factor that follows the commands and is the same everywhere,
+
+        s(U) = sum_f w_f phi_f(U)   (dimensionless; weights (1, F)),
+
+    for Kennedy and O'Hagan's scale of a model: ``model * CommandScale(...)`` is the share of
+    the model's own field that the tunnel gives more (or less), as a shared supply or inlet
+    that sags as the total flow grows would."""
+
+    kind = 'command_scale'
+
+    def __init__(self, fans: FanArray, features, weights, fixed=()):
+        self._init_weights(fans, features, weights, 1)
+
+    def modes(self, Z):
+        return np.ones((len(Z), 1))
+
+    def __repr__(self):
+        return 'CommandScale(' + ' + '.join(f'{w:+.3g} {f}' for f, w in zip(self.features, self.weights[0])) + ')'
 
 
 #: The named spatial modes of ``FieldFormula`` (R: the normalising radius [m]) and their words.

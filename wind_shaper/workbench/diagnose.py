@@ -51,7 +51,8 @@ import numpy as np
 
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from .consistency import SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy
+from .consistency import (SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy,
+                          SCALE_FEATURES)
 from .data import FitData, SweepSet
 from .discrepancy import describe_outside, outside_text
 from .enough import undecided
@@ -403,14 +404,19 @@ class Diagnosis:
         """Give an effect whose values spread across sweeps its second chance: the same check
         with a discrepancy model beside it (``consistency.check_beside_discrepancy``), for a
         real effect perturbed by physics the library lacks. Only the spread is forgiven: an
-        effect too few sweeps show, or that helps too few held-out sweeps, stays refused."""
+        effect too few sweeps show, or that helps too few held-out sweeps, stays refused. The
+        discrepancy is tried as bumps x command features, then with the model's own scale
+        beside them (``consistency.SCALE_FEATURES``); the first form it holds beside is kept."""
         c = t.check
         if not (self.check_beside and c.spread and not c.heldout_short):
             return
-        c.beside = check_beside_discrepancy(final.model, t.candidate.label, t.candidate.null,
-                                            self.train_, self.heldout_, without.model,
-                                            self.geometry_, c.informative,
-                                            tolerance=self.check_tolerance)
+        for scale in ((), SCALE_FEATURES):  # bumps only; then with the model's own scale too
+            c.beside = check_beside_discrepancy(final.model, t.candidate.label, t.candidate.null,
+                                                self.train_, self.heldout_, without.model,
+                                                self.geometry_, c.informative,
+                                                tolerance=self.check_tolerance, scale_features=scale)
+            if c.beside.passed:
+                break
         if c.beside.passed:
             c.passed, c.spread, c.reasons = True, False, []
         else:

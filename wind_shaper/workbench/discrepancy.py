@@ -15,13 +15,15 @@ region near a fan, a strip), and how large. Positions [m], forces [N].
 """
 from __future__ import annotations
 
+import itertools
+
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from ..core.geometry import TunnelGeometry
-from ..model import Discrepancy, Term, command_features, feature_words
+from ..model import CommandScale, Discrepancy, Product, Term, command_features, feature_words
 from .data import FitData
 from .residuals import disc_grid
 
@@ -45,6 +47,7 @@ class DiscrepancyFit:
     heldout_before: float = float('nan')  # [N] held-out model error without it
     heldout_after: float = float('nan')   # [N] and with it
     readings: dict = field(default_factory=dict)  # the physical readings tried, with their R^2
+    scale: Term | None = None  # model x CommandScale: Kennedy-O'Hagan's scale, when fitted with one
     fraction_map: tuple | None = None  # (grid (G, 2) [m], g (G,)): the fixed-fraction reading's map
 
     @property
@@ -148,7 +151,7 @@ def _design(data: FitData, geometry: TunnelGeometry, width: float, spacing: floa
 def fit_discrepancy(model: Term, data: FitData, geometry: TunnelGeometry, *,
                     widths=(0.06, 0.10), spacing: float = 1.25, fan_radius: float = 0.15,
                     features=('one', 'thrust', 'balance'), per_fan=(False, True),
-                    note: str = '') -> DiscrepancyFit:
+                    note: str = '', scale_features=()) -> DiscrepancyFit:
     """Fit a ``Discrepancy`` to the residual of ``model`` on ``data`` (training cells).
 
     Tried: every bump width in ``widths`` [m] (on a square grid of ``spacing`` x width), with
@@ -156,33 +159,46 @@ def fit_discrepancy(model: Term, data: FitData, geometry: TunnelGeometry, *,
     (bumps within ``fan_radius`` [m] of its hub only), as ``per_fan`` lists. For each, the
     prior variances and the noise are chosen by the evidence; among them the one that predicts
     left-out sweeps best is kept (sweeps are the independent units: a part fitted to one
-    sweep's turbulence or to one operating point does not carry over). BLAS runs on one thread
+    sweep's turbulence or to one operating point does not carry over). With ``scale_features``
+    (e.g. ``('one', 'thrust')``) Kennedy and O'Hagan's scale of the model is fitted with it, a
+    share of the model's own field that follows those features (``CommandScale``; one prior
+    group) is tried as well, kept when it predicts left-out sweeps better, and returned as
+    ``scale`` (``model * CommandScale``) to add beside ``term``. BLAS runs on one thread
     here: on matrices this small more threads only contend (a fit on an idle 2-core machine
     0.67 s -> 0.14 s; on a loaded one up to 30 s -> 0.2 s)."""
     from threadpoolctl import threadpool_limits
     with threadpool_limits(1, user_api='blas'):  # small matrices: threads only contend
         return _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, features,
-                                per_fan, note)
+                                per_fan, note, tuple(scale_features))
 
 
-def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, features, per_fan, note):
+def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, features, per_fan, note,
+                     scale_features):
     fans = geometry.fans
-    r = data.y - model(data.U, data.Z)
+    field_ = model(data.U, data.Z)
+    r = data.y - field_
+    scale_cols = (field_[:, None] * command_features(fans, scale_features, data.U)[0]
+                  if scale_features else np.zeros((len(r), 0)))
     best = None
-    for with_fans in per_fan:
+    for with_fans, width, scaled in itertools.product(per_fan, widths,
+                                                      (False, True) if scale_features else (False,)):
         names = list(features) + ([f'fan:{f.name}' for f in fans.fans if f.enabled] if with_fans else [])
-        for width in widths:
-            centres, Phi, groups, index = _design(data, geometry, width, spacing, names, len(features),
-                                                  fan_radius)
-            m, log_ev, noise, alpha = _evidence_fit(Phi, r, groups)
-            cv = _leave_sweep_out(Phi, r, groups, data.sweep, (alpha, 1.0 / noise ** 2))
-            if best is None or cv < best[0]:
-                W = np.zeros((len(centres), len(names)))
-                for (k, f), w in zip(index, m):
-                    W[k, f] = w
-                best = (cv, Discrepancy(fans, centres, width, names, W, note=note), log_ev, noise)
-    cv, term, log_ev, noise = best
-    out = DiscrepancyFit(term, log_ev, noise, {})
+        centres, Phi, groups, index = _design(data, geometry, width, spacing, names, len(features),
+                                              fan_radius)
+        if scaled:
+            Phi = np.hstack([Phi, scale_cols])
+            groups = np.concatenate([groups, np.full(len(scale_features), groups.max() + 1)])
+        m, log_ev, noise, alpha = _evidence_fit(Phi, r, groups)
+        cv = _leave_sweep_out(Phi, r, groups, data.sweep, (alpha, 1.0 / noise ** 2))
+        if best is None or cv < best[0]:
+            W = np.zeros((len(centres), len(names)))
+            for (k, f), w in zip(index, m):
+                W[k, f] = w
+            scale = (Product(model, CommandScale(fans, scale_features, m[len(index):]))
+                     if scaled else None)
+            best = (cv, Discrepancy(fans, centres, width, names, W, note=note), log_ev, noise, scale)
+    cv, term, log_ev, noise, scale = best
+    out = DiscrepancyFit(term, log_ev, noise, {}, scale=scale)
     out.cv_rmse = float(np.sqrt(cv))
     out.train_rms = float(np.sqrt(np.mean(r ** 2)))
     return out
@@ -190,17 +206,26 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
 
 def discrepancy_basis(data: FitData, geometry: TunnelGeometry, residual: np.ndarray, *,
                       widths=(0.06, 0.10), spacing: float = 1.25, fan_radius: float = 0.15,
-                      features=('one', 'thrust', 'balance')):
+                      features=('one', 'thrust', 'balance'), field: np.ndarray | None = None,
+                      scale_features=('one', 'thrust')):
     """The discrepancy's columns on ``data`` (bumps x the whole-tunnel ``features`` and every
     enabled fan's thrust near that fan), at the bump width [m] whose evidence for ``residual``
     [N] is highest, as a prior for other fits: (Phi (n, p), the prior precision of each column
-    [1/N^2], the noise sd [N] the evidence chose)."""
+    [1/N^2], the noise sd [N] the evidence chose). With ``field`` (n,) [N], the model's force on
+    ``data``, Kennedy and O'Hagan's scale of the model, let follow the whole-tunnel
+    ``scale_features`` (columns field x feature, one prior group: a shared supply or inlet
+    that gives every fan less as the total flow grows, a drift of the air's density), is
+    added."""
     from threadpoolctl import threadpool_limits
     names = list(features) + [f'fan:{f.name}' for f in geometry.fans.fans if f.enabled]
     best = None
     with threadpool_limits(1, user_api='blas'):  # small matrices: threads only contend
         for width in widths:
             _, Phi, groups, _ = _design(data, geometry, width, spacing, names, len(features), fan_radius)
+            if field is not None:
+                phi, _ = command_features(geometry.fans, scale_features, data.U)
+                Phi = np.hstack([Phi, field[:, None] * phi])
+                groups = np.concatenate([groups, np.full(len(scale_features), groups.max() + 1)])
             _, log_ev, noise, alpha = _evidence_fit(Phi, residual, groups)
             if best is None or log_ev > best[0]:
                 best = (log_ev, Phi, alpha[groups], noise)

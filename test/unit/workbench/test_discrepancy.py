@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from wind_shaper.core.errors import ConfigError
-from wind_shaper.model import (Discrepancy, FieldFormula, finite_difference_jacobian, load_model,
-                               save_model, term_from_dict)
+from wind_shaper.model import (CommandScale, Discrepancy, FieldFormula, Product, command_features,
+                               finite_difference_jacobian, load_model, save_model, term_from_dict)
 from wind_shaper.workbench.commands import add_command
-from wind_shaper.workbench.discrepancy import describe_map, disc_grid
+from wind_shaper.workbench.data import FitData
+from wind_shaper.workbench.discrepancy import describe_map, disc_grid, fit_discrepancy
 
 
 def _term(fans, rng):
@@ -37,6 +38,50 @@ def test_discrepancy_round_trips_through_a_model_file(wb_setup, reference, rng, 
     U = rng.uniform(0.0, 0.9, fans.n_fans)
     np.testing.assert_allclose(back(U, Z), model(U, Z), atol=1e-9)
     assert len(back.theta) == len(reference.theta)  # nothing of it is moved by a refit
+
+
+def test_a_command_scale_is_the_same_everywhere_and_round_trips(wb_setup, reference, rng, tmp_path):
+    fans = wb_setup.geometry.fans
+    scale = CommandScale(fans, ['one', 'thrust'], [[0.05, -0.3]])
+    Z = rng.uniform(-0.3, 0.3, (30, 2))
+    U = rng.uniform(0.1, 0.9, fans.n_fans)
+    thrust = float(np.mean(U ** 2))
+    np.testing.assert_allclose(scale(U, Z), 0.05 - 0.3 * thrust)
+    np.testing.assert_allclose(scale.jacobian(U, Z), finite_difference_jacobian(scale, U, Z), atol=1e-6)
+    model = reference + Product(reference, scale)  # the model's own field, 5 % - 30 % x thrust more
+    save_model(tmp_path / 's.yaml', model)
+    np.testing.assert_allclose(load_model(tmp_path / 's.yaml', fans)(U, Z), model(U, Z), atol=1e-9)
+    with pytest.raises(ConfigError, match='needs 1 x 2 weights'):
+        CommandScale(fans, ['one', 'thrust'], [1.0, 2.0, 3.0])
+
+
+def _cells(fans, rng, n_sweeps=10, per_sweep=150):
+    U = np.repeat(rng.uniform(0.0, 0.9, (n_sweeps, fans.n_fans)), per_sweep, axis=0)
+    Z = rng.uniform(-0.3, 0.3, (len(U), 2))
+    sweep = np.repeat(np.arange(n_sweeps), per_sweep)
+    return U, Z, sweep
+
+
+def test_the_discrepancy_takes_the_models_own_scale_only_where_it_predicts_better(
+        wb_setup, reference, rng):
+    """A shared supply that sags as the total flow grows scales the model's own field, which
+    bumps cannot follow across varied commands: fitted with the scale, the discrepancy finds it
+    (close to the true weights) and predicts left-out sweeps better; on a residual with no such
+    scale, the scale is left out."""
+    fans = wb_setup.geometry.fans
+    U, Z, sweep = _cells(fans, rng)
+    field = reference(U, Z)
+    thrust = command_features(fans, ['thrust'], U)[0][:, 0]
+    noise = rng.normal(0, 0.05, len(U))
+    sagging = FitData(U, Z, field * (1.0 + 0.04 - 0.25 * thrust) + noise, sweep, np.ones(len(U), int))
+    plain = fit_discrepancy(reference, sagging, wb_setup.geometry)
+    scaled = fit_discrepancy(reference, sagging, wb_setup.geometry, scale_features=('one', 'thrust'))
+    assert plain.scale is None and scaled.scale is not None
+    np.testing.assert_allclose(scaled.scale.k2.weights[0], [0.04, -0.25], atol=0.03)
+    assert scaled.cv_rmse < 0.7 * plain.cv_rmse, (scaled.cv_rmse, plain.cv_rmse)
+    bump = np.exp(-np.sum((Z - [0.1, -0.1]) ** 2, 1) / (2 * 0.06 ** 2))
+    patch = FitData(U, Z, field + 0.5 * bump + noise, sweep, np.ones(len(U), int))
+    assert fit_discrepancy(reference, patch, wb_setup.geometry, scale_features=('one', 'thrust')).scale is None
 
 
 def test_discrepancy_refuses_bad_input_with_what_to_do(wb_setup):
