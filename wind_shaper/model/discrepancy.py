@@ -190,6 +190,14 @@ class CommandScale(_ModeSum):
     def modes(self, Z):
         return np.ones((len(Z), 1))
 
+    def plus_one(self) -> 'CommandScale':
+        """1 + s(U), as a factor of the model it scales."""
+        features, weights = list(self.features), self.weights[0].copy()
+        if 'one' not in features:
+            features, weights = ['one'] + features, np.concatenate([[0.0], weights])
+        weights[features.index('one')] += 1.0
+        return CommandScale(self.fans, features, weights)
+
     def __repr__(self):
         return 'CommandScale(' + ' + '.join(f'{w:+.3g} {f}' for f, w in zip(self.features, self.weights[0])) + ')'
 

@@ -19,7 +19,7 @@ from ..experiment import write_design
 from ..model import TERMS, Term, Wrapper, save_model, term_label, walk
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
-from .discrepancy import describe_discrepancy, fit_discrepancy
+from .discrepancy import SCALE_FEATURES, describe_discrepancy, fit_discrepancy
 from .formula import fit_formula
 from .errors import CandidateError
 from .fitting import FitResult, fit_model
@@ -403,10 +403,11 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
             term = fit_formula(new_fit.model, fd, geometry).term
             disc_words.append(f'The formula: residual = {term.formula()}.')
         else:
-            dfit = fit_discrepancy(new_fit.model, fd, geometry, note=f'fitted to the residual of {data.source}')
+            dfit = fit_discrepancy(new_fit.model, fd, geometry, note=f'fitted to the residual of {data.source}',
+                                   scale_features=SCALE_FEATURES)
             disc_words += describe_discrepancy(dfit, train.commands, geometry, model=new_fit.model)
             term = dfit.term
-        new = new_fit.model + term
+        new = dfit.added_to(new_fit.model) if kind == 'discrepancy' else new_fit.model + term
         new_fit = fit_model(new, fd, free=fit_mask(new), max_nfev=20)
         added.append((kind, {}, term_label(term)))
     ho.noise_sd = noise_sd if noise_sd is not None else ho.estimate_noise(old_fit.model)

@@ -27,14 +27,9 @@ from scipy.stats import chi2
 
 from ..model import Term, param_slices, term_label
 from .data import FitData
-from .discrepancy import discrepancy_basis, fit_discrepancy
+from .discrepancy import SCALE_FEATURES, discrepancy_basis, fit_discrepancy
 from .fitting import fit_model
 from .wording import values_text
-
-#: What Kennedy and O'Hagan's scale of the model follows in the checks beside a discrepancy:
-#: a fixed share of the field, and one that grows with the total thrust (a shared supply or
-#: inlet that sags as the flow grows, a drift of the air's density).
-SCALE_FEATURES = ('one', 'thrust')
 
 __all__ = ['SweepCheck', 'BesideCheck', 'check_across_sweeps', 'check_beside_discrepancy',
            'check_across_space', 'judge_spread', 'gain_beside_discrepancy']
@@ -423,7 +418,6 @@ def gain_beside_discrepancy(previous: Term, model: Term, train: FitData, heldout
     what an effect carries that a flexible description of the rest cannot."""
     def beside(m):
         fit = fit_discrepancy(m, train, geometry, scale_features=scale_features)
-        beside_m = m + fit.term
-        return heldout.evaluate(beside_m if fit.scale is None else beside_m + fit.scale)['model_rmse']
+        return heldout.evaluate(fit.added_to(m))['model_rmse']
     before, after = beside(previous), beside(model)
     return float(1.0 - after / before) if before > 0 else 0.0

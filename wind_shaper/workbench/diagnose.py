@@ -51,10 +51,9 @@ import numpy as np
 
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from .consistency import (SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy,
-                          SCALE_FEATURES)
+from .consistency import SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy
 from .data import FitData, SweepSet
-from .discrepancy import describe_outside, outside_text
+from .discrepancy import SCALE_FEATURES, describe_outside, outside_text
 from .enough import undecided
 from .formula import fit_formula, formula_text
 from .errors import FitError
@@ -406,7 +405,7 @@ class Diagnosis:
         real effect perturbed by physics the library lacks. Only the spread is forgiven: an
         effect too few sweeps show, or that helps too few held-out sweeps, stays refused. The
         discrepancy is tried as bumps x command features, then with the model's own scale
-        beside them (``consistency.SCALE_FEATURES``); the first form it holds beside is kept."""
+        beside them (``discrepancy.SCALE_FEATURES``); the first form it holds beside is kept."""
         c = t.check
         if not (self.check_beside and c.spread and not c.heldout_short):
             return

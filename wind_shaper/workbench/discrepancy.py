@@ -27,7 +27,12 @@ from ..model import CommandScale, Discrepancy, Product, Term, command_features, 
 from .data import FitData
 from .residuals import disc_grid
 
-__all__ = ['DiscrepancyFit', 'fit_discrepancy', 'discrepancy_basis', 'describe_discrepancy',
+#: What Kennedy and O'Hagan's scale of the model follows (``CommandScale``): a fixed share of
+#: the field, and one that grows with the total thrust (a shared supply or inlet that sags as
+#: the flow grows, a drift of the air's density).
+SCALE_FEATURES = ('one', 'thrust')
+
+__all__ = ['SCALE_FEATURES', 'DiscrepancyFit', 'fit_discrepancy', 'discrepancy_basis', 'describe_discrepancy',
            'describe_map', 'disc_grid', 'describe_outside', 'outside_text']
 
 
@@ -47,8 +52,25 @@ class DiscrepancyFit:
     heldout_before: float = float('nan')  # [N] held-out model error without it
     heldout_after: float = float('nan')   # [N] and with it
     readings: dict = field(default_factory=dict)  # the physical readings tried, with their R^2
-    scale: Term | None = None  # model x CommandScale: Kennedy-O'Hagan's scale, when fitted with one
     fraction_map: tuple | None = None  # (grid (G, 2) [m], g (G,)): the fixed-fraction reading's map
+    # Kennedy and O'Hagan's scale of the model, when fitted with one: the share s(U) of the
+    # model's own field (``base``, the model the residual was taken from) the tunnel adds
+    scale: CommandScale | None = None
+    base: Term | None = None
+
+    def added_to(self, model: Term) -> Term:
+        """``model`` with the discrepancy: model + term, and with a scale model x (1 + s(U)) +
+        term (no free parameters added: a refit moves the model's own only)."""
+        if self.scale is None:
+            return model + self.term
+        return Product(model, self.scale.plus_one()) + self.term
+
+    def value(self, U, Z) -> np.ndarray:
+        """The discrepancy at commands U and points Z (M, 2) [m]: term, plus base x s(U) [N]."""
+        out = self.term(U, Z)
+        if self.scale is not None:
+            out = out + self.base(U, Z) * self.scale(U, Z)
+        return out
 
     @property
     def offered(self) -> bool:
@@ -64,7 +86,8 @@ class DiscrepancyFit:
                                          'with': round(self.heldout_after, 5)},
                 'offered': bool(self.offered), 'readings': self.readings,
                 'shares': {k: round(v, 4) for k, v in self.shares.items()}, 'words': list(self.words),
-                'term': self.term.to_dict()}
+                'term': self.term.to_dict(),
+                'scale': self.scale.to_dict() if self.scale is not None else None}
 
 
 def _evidence_fit(Phi: np.ndarray, r: np.ndarray, groups: np.ndarray, n_iter: int = 30):
@@ -194,11 +217,10 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
             W = np.zeros((len(centres), len(names)))
             for (k, f), w in zip(index, m):
                 W[k, f] = w
-            scale = (Product(model, CommandScale(fans, scale_features, m[len(index):]))
-                     if scaled else None)
+            scale = CommandScale(fans, scale_features, m[len(index):]) if scaled else None
             best = (cv, Discrepancy(fans, centres, width, names, W, note=note), log_ev, noise, scale)
     cv, term, log_ev, noise, scale = best
-    out = DiscrepancyFit(term, log_ev, noise, {}, scale=scale)
+    out = DiscrepancyFit(term, log_ev, noise, {}, scale=scale, base=model if scale is not None else None)
     out.cv_rmse = float(np.sqrt(cv))
     out.train_rms = float(np.sqrt(np.mean(r ** 2)))
     return out
@@ -232,13 +254,35 @@ def discrepancy_basis(data: FitData, geometry: TunnelGeometry, residual: np.ndar
     return best[1], best[2], best[3]
 
 
-def _shares(term: Discrepancy, commands: np.ndarray, grid: np.ndarray) -> tuple[dict, np.ndarray]:
-    """{feature: share of the energy} over the commands (S, n_fans) on the grid, and the parts
-    (S, G, F) [N]."""
-    parts = np.stack([term.parts(u, grid) for u in commands])
+def _shares(fit: DiscrepancyFit, commands: np.ndarray, grid: np.ndarray):
+    """({part: share of the energy}, the parts (S, G, P) [N], their names) over the commands
+    (S, n_fans) on the grid: each command feature's part of the bumps, and 'scale' (the model's
+    own field x s(U)) when fitted."""
+    parts = np.stack([fit.term.parts(u, grid) for u in commands])
+    names = list(fit.term.features)
+    if fit.scale is not None:
+        scaled = np.stack([fit.base(u, grid) * fit.scale(u, grid) for u in commands])
+        parts = np.concatenate([parts, scaled[:, :, None]], axis=2)
+        names.append('scale')
     energy = np.mean(parts ** 2, axis=(0, 1))
     total = float(energy.sum()) or 1.0
-    return {f: float(e / total) for f, e in zip(term.features, energy)}, parts
+    return {f: float(e / total) for f, e in zip(names, energy)}, parts, names
+
+
+def _scale_words(scale: CommandScale) -> str:
+    """How the model's own field is scaled, in words: the share s(U) at low total thrust and
+    with every fan at full PWM, and what that reads as."""
+    w = dict(zip(scale.features, scale.weights[0]))
+    low, full = w.get('one', 0.0), w.get('one', 0.0) + w.get('thrust', 0.0)
+    if full - low < -0.03:
+        reading = ('every fan gives less as the total flow grows: a starved inlet, or a shared '
+                   'supply that sags under the load')
+    elif full - low > 0.03:
+        reading = 'every fan gives more as the total flow grows, whatever fan it is'
+    else:
+        reading = 'a fixed share of the whole field: the air\'s density, or the thrust calibration off'
+    return (f'the model\'s own field scaled, {100 * low:+.0f} % of its force at a low total thrust and '
+            f'{100 * full:+.0f} % with every fan at full PWM: {reading}')
 
 
 def describe_map(values: np.ndarray, grid: np.ndarray, geometry: TunnelGeometry,
@@ -349,9 +393,8 @@ def describe_discrepancy(fit: DiscrepancyFit, commands: np.ndarray, geometry: Tu
     and a fixed fraction of the local force (a blocked or leaking patch); each is stated when it
     explains at least ``min_r2`` of the discrepancy over the sweeps."""
     grid = disc_grid(geometry.sweep_radius, 0.02)
-    shares, parts = _shares(fit.term, commands, grid)
+    shares, parts, features = _shares(fit, commands, grid)
     fit.shares = shares
-    features = list(fit.term.features)
     fan_share = sum(v for k, v in shares.items() if k.startswith('fan:'))
     words = []
     total = parts.sum(axis=2)
@@ -378,6 +421,9 @@ def describe_discrepancy(fit: DiscrepancyFit, commands: np.ndarray, geometry: Tu
     for v, k in ranked:
         if v < min_share:
             continue
+        if k == 'scale':
+            words.append(f'{100 * v:.0f} % of it is {_scale_words(fit.scale)}.')
+            continue
         f = features.index(k)
         typical = float(np.median(np.abs(parts[:, :, f]).max(axis=1)))
         strongest = int(np.argmax(np.abs(parts[:, :, f]).max(axis=1)))
@@ -402,9 +448,10 @@ def describe_outside(model: Term, train: FitData, heldout, commands: np.ndarray,
     """The discrepancy of ``model`` fitted on the training cells, judged on the held-out sweeps
     (``metrics.HeldOut``: ``heldout_before`` / ``heldout_after`` [N], the model error without
     and with it) and described over the sweeps' ``commands``."""
-    fit = fit_discrepancy(model, train, geometry, note='fitted to the residual by the diagnosis')
+    fit = fit_discrepancy(model, train, geometry, note='fitted to the residual by the diagnosis',
+                          scale_features=SCALE_FEATURES)
     fit.heldout_before = float(heldout.evaluate(model)['model_rmse'])
-    fit.heldout_after = float(heldout.evaluate(model + fit.term)['model_rmse'])
+    fit.heldout_after = float(heldout.evaluate(fit.added_to(model))['model_rmse'])
     describe_discrepancy(fit, commands, geometry, model=model)
     return fit
 

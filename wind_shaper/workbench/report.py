@@ -131,7 +131,7 @@ def plot_discrepancy(fit, commands: np.ndarray, geometry: TunnelGeometry):
     grid = disc_grid(geometry.sweep_radius, 0.02)
     tri = mtri.Triangulation(grid[:, 0], grid[:, 1])
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.3))
-    value = fit.term(np.mean(commands, axis=0), grid)
+    value = fit.value(np.mean(commands, axis=0), grid)
     vmax = max(float(np.max(np.abs(value))), 1e-3)
     cs = axes[0].tricontourf(tri, value, levels=np.linspace(-vmax, vmax, 21), cmap='RdBu_r', extend='both')
     plt.colorbar(cs, ax=axes[0], label='measured - model [N]')
