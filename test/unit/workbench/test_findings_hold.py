@@ -125,3 +125,17 @@ def test_a_wall_layer_beside_a_starved_inlet_holds_beside_the_models_own_scale(w
     plain = check_beside_discrepancy(final, t.candidate.label, t.candidate.null, d.train_, d.heldout_,
                                      without, wb_setup.geometry, t.check.informative)
     assert not plain.passed, plain
+
+
+def test_a_background_draft_beside_a_side_draft_is_judged_where_the_fans_are_off(wb_setup, reference):
+    # the draft bends the plume and dominates the fans-on residual: the background (0.3 N)
+    # lowers the held-out error only 9 % overall, but it is all of the fans-off sweeps' error
+    d = _diagnose(wb_setup, reference, ('side_draft', 'background_draft'), 100)
+    _assert_nothing_wrong(d, 'background_draft')
+    (t,) = d.steps_
+    assert t.candidate.name == 'background' and t.gain < 0.2 <= t.gain_off
+    assert abs(t.params['force'] - 0.3) < 0.05, t.params
+    assert 'It shows with every fan off' in d.summary()
+    # the draft alone leaves nothing on the fans-off sweeps: no background is named
+    alone = _diagnose(wb_setup, reference, ('side_draft',), 100)
+    assert 'background' not in {t.candidate.name for t in alone.steps_}, alone.summary()
