@@ -402,12 +402,13 @@ def add_command(model: Term, additions: Sequence, data: SweepSet, geometry: Tunn
         if kind == 'formula':
             term = fit_formula(new_fit.model, fd, geometry).term
             disc_words.append(f'The formula: residual = {term.formula()}.')
+            new = new_fit.model + term
         else:
             dfit = fit_discrepancy(new_fit.model, fd, geometry, note=f'fitted to the residual of {data.source}',
                                    scale_features=SCALE_FEATURES)
             disc_words += describe_discrepancy(dfit, train.commands, geometry, model=new_fit.model)
             term = dfit.term
-        new = dfit.added_to(new_fit.model) if kind == 'discrepancy' else new_fit.model + term
+            new = dfit.added_to(new_fit.model)  # with the model's scale, when it was kept
         new_fit = fit_model(new, fd, free=fit_mask(new), max_nfev=20)
         added.append((kind, {}, term_label(term)))
     ho.noise_sd = noise_sd if noise_sd is not None else ho.estimate_noise(old_fit.model)

@@ -430,7 +430,8 @@ class Diagnosis:
         for t in kept:  # the parameters as the final model has them
             node = _node(final.model, t.candidate.label)
             t.params = t.candidate.params(node)
-            t.finding = t.candidate.describe(node, t.std) + _fans_off_text(t) + _beside_text(t, final.model)
+            t.finding = (t.candidate.describe(node, t.std) + _fans_off_text(t, self.min_gain)
+                         + _beside_text(t, final.model))
         self.steps_ = kept
         return final
 
@@ -639,9 +640,10 @@ def _node(model, label):
     return None
 
 
-def _fans_off_text(t: Trial) -> str:
-    """What a finding judged on the fans-off sweeps must say."""
-    if t.gain_off is None or t.gain >= 0.2:
+def _fans_off_text(t: Trial, min_gain: float) -> str:
+    """What a finding judged on the fans-off sweeps (its held-out gain short of ``min_gain``)
+    must say."""
+    if t.gain_off is None or t.gain >= min_gain:
         return ''
     return (f'. It shows with every fan off: there it lowers the held-out model error '
             f'{100 * t.gain_off:.0f} %, over all held-out sweeps only {100 * t.gain:.0f} % (with the '

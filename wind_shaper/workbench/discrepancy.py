@@ -16,7 +16,6 @@ region near a fan, a strip), and how large. Positions [m], forces [N].
 from __future__ import annotations
 
 import itertools
-
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,6 +170,19 @@ def _design(data: FitData, geometry: TunnelGeometry, width: float, spacing: floa
     return centres, np.hstack(cols), np.asarray(groups), index
 
 
+def _scale_columns(fans, scale_features, field: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """Columns (n, F) of Kennedy and O'Hagan's scale: the model's force ``field`` (n,) [N]
+    times each of ``scale_features`` at the commands U."""
+    if not scale_features:
+        return np.zeros((len(field), 0))
+    return field[:, None] * command_features(fans, scale_features, U)[0]
+
+
+def _with_group(Phi: np.ndarray, groups: np.ndarray, cols: np.ndarray):
+    """(Phi, groups) with ``cols`` appended as one more prior group."""
+    return np.hstack([Phi, cols]), np.concatenate([groups, np.full(cols.shape[1], groups.max() + 1)])
+
+
 def fit_discrepancy(model: Term, data: FitData, geometry: TunnelGeometry, *,
                     widths=(0.06, 0.10), spacing: float = 1.25, fan_radius: float = 0.15,
                     features=('one', 'thrust', 'balance'), per_fan=(False, True),
@@ -183,10 +195,10 @@ def fit_discrepancy(model: Term, data: FitData, geometry: TunnelGeometry, *,
     prior variances and the noise are chosen by the evidence; among them the one that predicts
     left-out sweeps best is kept (sweeps are the independent units: a part fitted to one
     sweep's turbulence or to one operating point does not carry over). With ``scale_features``
-    (e.g. ``('one', 'thrust')``) Kennedy and O'Hagan's scale of the model is fitted with it, a
-    share of the model's own field that follows those features (``CommandScale``; one prior
-    group) is tried as well, kept when it predicts left-out sweeps better, and returned as
-    ``scale`` (``model * CommandScale``) to add beside ``term``. BLAS runs on one thread
+    (e.g. ``SCALE_FEATURES``) each is also tried with Kennedy and O'Hagan's scale of the model,
+    a share of the model's own field that follows those features (one prior group); when that
+    predicts left-out sweeps better it is kept as ``scale`` (a ``CommandScale``; ``added_to``
+    puts both in a model). BLAS runs on one thread
     here: on matrices this small more threads only contend (a fit on an idle 2-core machine
     0.67 s -> 0.14 s; on a loaded one up to 30 s -> 0.2 s)."""
     from threadpoolctl import threadpool_limits
@@ -200,8 +212,7 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
     fans = geometry.fans
     field_ = model(data.U, data.Z)
     r = data.y - field_
-    scale_cols = (field_[:, None] * command_features(fans, scale_features, data.U)[0]
-                  if scale_features else np.zeros((len(r), 0)))
+    scale_cols = _scale_columns(fans, scale_features, field_, data.U)
     best = None
     for with_fans, width, scaled in itertools.product(per_fan, widths,
                                                       (False, True) if scale_features else (False,)):
@@ -209,8 +220,7 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
         centres, Phi, groups, index = _design(data, geometry, width, spacing, names, len(features),
                                               fan_radius)
         if scaled:
-            Phi = np.hstack([Phi, scale_cols])
-            groups = np.concatenate([groups, np.full(len(scale_features), groups.max() + 1)])
+            Phi, groups = _with_group(Phi, groups, scale_cols)
         m, log_ev, noise, alpha = _evidence_fit(Phi, r, groups)
         cv = _leave_sweep_out(Phi, r, groups, data.sweep, (alpha, 1.0 / noise ** 2))
         if best is None or cv < best[0]:
@@ -229,7 +239,7 @@ def _fit_discrepancy(model, data, geometry, widths, spacing, fan_radius, feature
 def discrepancy_basis(data: FitData, geometry: TunnelGeometry, residual: np.ndarray, *,
                       widths=(0.06, 0.10), spacing: float = 1.25, fan_radius: float = 0.15,
                       features=('one', 'thrust', 'balance'), field: np.ndarray | None = None,
-                      scale_features=('one', 'thrust')):
+                      scale_features=SCALE_FEATURES):
     """The discrepancy's columns on ``data`` (bumps x the whole-tunnel ``features`` and every
     enabled fan's thrust near that fan), at the bump width [m] whose evidence for ``residual``
     [N] is highest, as a prior for other fits: (Phi (n, p), the prior precision of each column
@@ -240,14 +250,13 @@ def discrepancy_basis(data: FitData, geometry: TunnelGeometry, residual: np.ndar
     added."""
     from threadpoolctl import threadpool_limits
     names = list(features) + [f'fan:{f.name}' for f in geometry.fans.fans if f.enabled]
+    scale_cols = _scale_columns(geometry.fans, scale_features, field, data.U) if field is not None else None
     best = None
     with threadpool_limits(1, user_api='blas'):  # small matrices: threads only contend
         for width in widths:
             _, Phi, groups, _ = _design(data, geometry, width, spacing, names, len(features), fan_radius)
-            if field is not None:
-                phi, _ = command_features(geometry.fans, scale_features, data.U)
-                Phi = np.hstack([Phi, field[:, None] * phi])
-                groups = np.concatenate([groups, np.full(len(scale_features), groups.max() + 1)])
+            if scale_cols is not None:
+                Phi, groups = _with_group(Phi, groups, scale_cols)
             _, log_ev, noise, alpha = _evidence_fit(Phi, residual, groups)
             if best is None or log_ev > best[0]:
                 best = (log_ev, Phi, alpha[groups], noise)

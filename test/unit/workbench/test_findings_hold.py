@@ -5,7 +5,7 @@ import pytest
 
 from wind_shaper.sim import make_effect
 from wind_shaper.workbench.commands import simulated_sweeps
-from wind_shaper.workbench.consistency import check_across_space
+from wind_shaper.workbench.consistency import check_across_space, check_beside_discrepancy
 from wind_shaper.workbench.diagnose import Diagnosis
 from wind_shaper.workbench.library import candidate_for_hidden_effect
 
@@ -16,6 +16,14 @@ def _diagnose(wb_setup, reference, effects, seed):
     built = [make_effect(e) for e in effects]
     data = simulated_sweeps(wb_setup.make_sim(seed=seed, effects=built), 12, seed=seed)
     return Diagnosis().fit(reference, data, wb_setup.geometry)
+
+
+def _the_finding(d, known, name):
+    """The one finding of ``d``: nothing wrong named, and it is the candidate ``name``."""
+    _assert_nothing_wrong(d, known)
+    (t,) = d.steps_
+    assert t.candidate.name == name, d.summary()
+    return t
 
 
 def _assert_nothing_wrong(d, known):
@@ -66,9 +74,7 @@ def test_a_tilted_fan_beside_a_blocked_patch_holds_beside_a_discrepancy(wb_setup
     # the blocked patch perturbs LM2's landing offset differently in every sweep (4 of 7 sweeps
     # disagree alone); refitted jointly with a discrepancy model the sweeps agree again
     d = _diagnose(wb_setup, reference, ('honeycomb_blockage', 'tilted_fan'), 100)
-    _assert_nothing_wrong(d, 'tilted_fan')
-    (t,) = d.steps_
-    assert t.candidate.name == 'fan_shift[LM2]'
+    t = _the_finding(d, 'tilted_fan', 'fan_shift[LM2]')
     beside = t.check.beside
     assert beside is not None and beside.passed, beside
     # the joint estimate is nearer the truth (4 cm along x) than the pooled fit the patch biases
@@ -84,9 +90,8 @@ def test_beside_a_discrepancy_a_weak_fan_holds_and_a_patch_does_not(wb_setup, re
     # alone it predicts the held-out sweeps no better than a discrepancy without it), and HM1's
     # shrinks to a quarter of its size
     d = _diagnose(wb_setup, reference, ('stand_wake', 'weak_fan'), 105)
-    _assert_nothing_wrong(d, 'weak_fan')
-    (t,) = d.steps_
-    assert t.candidate.name == 'fan_gain[HM2]' and t.check.beside.passed
+    t = _the_finding(d, 'weak_fan', 'fan_gain[HM2]')
+    assert t.check.beside.passed
     refused = {t.candidate.name: t for t in d.demoted_}
     assert 'the discrepancy takes up what it explained' in refused['fan_shift[LM2]'].check.reasons[-1]
     assert 'the discrepancy takes up what it explained' in refused['fan_shift[HM1]'].check.reasons[-1]
@@ -112,14 +117,12 @@ def test_a_wall_layer_beside_a_starved_inlet_holds_beside_the_models_own_scale(w
     # which cannot follow the model's own field as the commands vary; with Kennedy and O'Hagan's
     # scale of the model (a share that follows the total thrust) beside it the sweeps agree
     d = _diagnose(wb_setup, reference, ('plenum_starvation', 'wall_boundary_layer'), 101)
-    _assert_nothing_wrong(d, 'wall_boundary_layer')
-    (t,) = d.steps_
-    assert t.candidate.name == 'wall_layer' and t.check.beside.passed
+    t = _the_finding(d, 'wall_boundary_layer', 'wall_layer')
+    assert t.check.beside.passed
     _, truth = candidate_for_hidden_effect(make_effect('wall_boundary_layer'))
     assert abs(t.check.beside.mean[0] - truth['thickness']) < 0.015, t.check.beside.mean
     assert 'only with a discrepancy model beside it' in d.summary()
     # bumps alone do not settle it: the same check without the model's scale fails
-    from wind_shaper.workbench.consistency import check_beside_discrepancy
     final = d.final_.model
     without = d.baseline_.model
     plain = check_beside_discrepancy(final, t.candidate.label, t.candidate.null, d.train_, d.heldout_,
@@ -131,9 +134,8 @@ def test_a_background_draft_beside_a_side_draft_is_judged_where_the_fans_are_off
     # the draft bends the plume and dominates the fans-on residual: the background (0.3 N)
     # lowers the held-out error only 9 % overall, but it is all of the fans-off sweeps' error
     d = _diagnose(wb_setup, reference, ('side_draft', 'background_draft'), 100)
-    _assert_nothing_wrong(d, 'background_draft')
-    (t,) = d.steps_
-    assert t.candidate.name == 'background' and t.gain < 0.2 <= t.gain_off
+    t = _the_finding(d, 'background_draft', 'background')
+    assert t.gain < 0.2 <= t.gain_off
     assert abs(t.params['force'] - 0.3) < 0.05, t.params
     assert 'It shows with every fan off' in d.summary()
     # the draft alone leaves nothing on the fans-off sweeps: no background is named
