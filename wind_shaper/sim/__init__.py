@@ -17,8 +17,10 @@ from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
-from .unmodelled_effects import (OTHER_FORM, OUTSIDE_LIBRARY, HoneycombBlockage, PlenumStarvation,
-                                 QuadraticSwirl, SideDraft, StandWake, ThermalGradient)
+from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, EscCrosstalk,
+                                 HoneycombBlockage, JetDeflection, JetSpreading, PlenumStarvation,
+                                 QuadraticSwirl, SideDraft, StandWake, ThermalGradient, VaneRipple,
+                                 WallReturnFlow)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
@@ -26,7 +28,8 @@ __all__ = [
     'HiddenEffect', 'WeakFan', 'Swirl', 'WallBoundaryLayer', 'JetInteraction', 'DeadBand',
     'TiltedFan', 'ElongatedFootprint', 'BackgroundDraft', 'HIDDEN_EFFECTS', 'make_effect',
     'HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
-    'ThermalGradient', 'OUTSIDE_LIBRARY', 'OTHER_FORM',
+    'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
+    'JetSpreading', 'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]

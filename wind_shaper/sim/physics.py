@@ -25,6 +25,8 @@ from ..core.errors import ConfigError
 CUTOFF_TOLERANCE = 1e-4
 #: Target number of fan/point pairs evaluated at once (bounds memory to a few tens of MB).
 PAIRS_PER_CHUNK = 1 << 20
+#: Edge-jet footprint forms ``PlantConstants.profile`` may name.
+EDGE_PROFILES = ('flat_top', 'heavy_tail')
 #: Default seed of the fixed per-fan build imperfections: the default tunnel is always the same
 #: lopsided tunnel.
 BUILD_SEED = 7
@@ -62,14 +64,19 @@ class PlantConstants:
     """Nominal constants of the base plant.
 
     thrust: group -> ThrustCurve [N]; width: group -> nominal footprint width w [m] of the
-    edge-fan jets (``higher``/``lower``); flatness: exponent beta of the flat-topped footprint
-    exp(-(d/w)^beta); ring_core, ring_rise [m], ring_width [m]: the central fan's ring footprint
+    edge-fan jets (``higher``/``lower``); profile: the edge jets' footprint form, ``flat_top``
+    exp(-(d/w)^beta) with beta = ``flatness``, or ``heavy_tail`` (1 + (d/w)^2 / nu)^-nu with
+    nu = ``tail`` (a jet that entrains the air around it: a rounder top and a far slower fall
+    than any exponential, so the prior's Gaussian footprints differ in form, not only in size);
+    ring_core, ring_rise [m], ring_width [m]: the central fan's ring footprint
     (ring_core + (d/ring_rise)^2) exp(-(d/ring_width)^2).
     """
 
     thrust: Mapping[str, ThrustCurve] = field(default_factory=_default_thrust)
     width: Mapping[str, float] = field(default_factory=lambda: {'higher': 0.15, 'lower': 0.14})
     flatness: float = 2.4
+    profile: str = 'flat_top'
+    tail: float = 3.0
     ring_core: float = 0.25
     ring_rise: float = 0.18
     ring_width: float = 0.22
@@ -85,6 +92,11 @@ class PlantConstants:
             raise ConfigError(f'plant constants need positive widths for higher and lower; got {width}')
         if not (1.0 <= self.flatness <= 8.0):
             raise ConfigError(f'footprint flatness must be in [1, 8]; got {self.flatness}')
+        if self.profile not in EDGE_PROFILES:
+            raise ConfigError(f'footprint profile {self.profile!r} is unknown; choose one of '
+                              f'{sorted(EDGE_PROFILES)}')
+        if not (1.5 <= self.tail <= 50.0):
+            raise ConfigError(f'footprint tail exponent must be in [1.5, 50]; got {self.tail}')
         if not (self.ring_core >= 0 and self.ring_rise > 0 and self.ring_width > 0):
             raise ConfigError('ring constants need ring_core >= 0 and positive ring_rise, ring_width')
         object.__setattr__(self, 'thrust', thrust)
@@ -96,7 +108,7 @@ class PlantConstants:
             return cls(**dict(cfg or {}))
         except TypeError as exc:
             raise ConfigError(f'bad plant constants: {exc}; keys are thrust, width, flatness, '
-                              f'ring_core, ring_rise, ring_width') from None
+                              f'profile, tail, ring_core, ring_rise, ring_width') from None
 
 
 @dataclass(frozen=True)
@@ -195,6 +207,21 @@ class FlatTop(Profile):
 
     def __repr__(self):
         return f'exp(-(d/w)^{self.beta:g})'
+
+
+class HeavyTail(Profile):
+    """Student-t-like footprint (1 + (d/w)^2 / nu)^-nu: a Gaussian as nu grows, far heavier
+    tails for small nu (at d = 2w, nu = 3: 0.08 of the peak against a Gaussian's 0.018)."""
+
+    def __init__(self, nu: float = 3.0):
+        self.nu = float(nu)
+        self.cutoff = self._find_cutoff()
+
+    def __call__(self, s):
+        return np.power(1.0 + s / self.nu, -self.nu)
+
+    def __repr__(self):
+        return f'(1 + (d/w)^2/{self.nu:g})^-{self.nu:g}'
 
 
 class Ring(Profile):
@@ -321,6 +348,13 @@ def _tiled_density(points: np.ndarray, g: JetGroup) -> np.ndarray:
 
 
 # -- plate averaging ----------------------------------------------------------------------------
+def edge_profile(constants: 'PlantConstants') -> Profile:
+    """The edge jets' footprint profile that ``constants`` name."""
+    if constants.profile == 'heavy_tail':
+        return HeavyTail(constants.tail)
+    return FlatTop(constants.flatness)
+
+
 def plate_nodes(side: float, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes (Q, 2) [m, relative to the plate centre] and weights (Q,) summing
     to 1 over the axis-aligned square plate of ``side`` [m]; Q = order^2."""

@@ -33,7 +33,7 @@ from .effects import HiddenEffect, effects_from_config
 from .errors import CommandError
 from .noise import NoiseModel
 from .paths import TourPath, path_from_config
-from .physics import (BUILD_SEED, FlatTop, Imperfections, JetGroup, PlantConstants, Ring,
+from .physics import (BUILD_SEED, Imperfections, JetGroup, PlantConstants, Ring, edge_profile,
                       footprint_norm, plate_nodes)
 
 #: Plate-centre positions evaluated per block (x plate quadrature nodes) in ``true_field``.
@@ -98,7 +98,7 @@ class SimulatedTunnel:
 
     def _setup_jets(self):
         c, side = self.constants, self.geometry.plate_side
-        self._edge = FlatTop(c.flatness)
+        self._edge = edge_profile(c)
         self._ring = Ring(c.ring_core, c.ring_rise / c.ring_width)
         norm = {g: footprint_norm(self._edge, c.width[g], side, self.plate_order, ring=False)
                 for g in ('higher', 'lower')}

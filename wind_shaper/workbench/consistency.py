@@ -317,7 +317,9 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
                              tolerance: float = 0.1, max_z: float = 3.0,
                              max_disagree: float = 0.0, min_p: float = 0.05,
                              min_share: float = 0.7, min_z: float = 3.0,
-                             min_heldout_gain: float = 0.2, scale_features=()) -> BesideCheck:
+                             min_heldout_gain: float = 0.2, scale_features=(),
+                             values_before: np.ndarray | None = None,
+                             max_spread_kept: float = 2 / 3) -> BesideCheck:
     """Does the term ``label`` of ``model`` hold across sweeps once what the library lacks is
     modelled beside it? For an effect whose values ``check_across_sweeps`` found spread.
 
@@ -339,6 +341,15 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
        ``max_disagree`` 0 around their weighted mean, each sweep's posterior standard error and
        ``tolerance`` x the effect's size in quadrature) and the spread as a whole is ordinary
        (p >= ``min_p``, 0.05);
+    1b. the discrepancy takes the spread up rather than hiding it behind wider error bars: the
+       per-sweep values' median absolute deviation shrinks to at most ``max_spread_kept`` (2/3)
+       of what it was without the discrepancy (``values_before``, the informative sweeps'
+       values of ``check_across_sweeps``), or to within ``tolerance`` x the effect's size. A
+       discrepancy that shares the term's own columns (a bump over a fan times that fan's
+       command, beside that fan's gain) leaves each sweep's value as loose as its error bars
+       allow, and any spread then looks ordinary: an ESC that picks up another fan's signal,
+       read as that fan's gain, kept its spread (0.25 -> 0.26) while its error bars grew
+       tenfold; the real effects this check rescues shrink theirs to 16-50 %;
     2. their mean keeps at least ``min_share`` (70 %) of the pooled value's distance from no
        effect, and lies ``min_z`` standard errors from it;
     3. beside a discrepancy refitted to the model's residual without the term and with it
@@ -390,10 +401,15 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
     z_null = float(np.max(np.abs(centre - ref)[magnitude] / mean_std[magnitude]))
     out = BesideCheck(names, values, np.sqrt(var), centre, mean_std, p_value, int(disagree.sum()),
                       kept / max(far, 1e-12), z_null)
+    spread_kept = _spread_kept(values_before, values, size, tolerance, magnitude, max_spread_kept)
     if not holds:
         out.reasons.append(f'beside a discrepancy model it still does not hold across sweeps '
                            f'({out.disagree} of {len(values)} sweeps disagree; chance of so much '
                            f'spread {p_value:.1g})')
+    elif spread_kept:
+        out.reasons.append(f'beside a discrepancy model its values spread as much as without one '
+                           f'({spread_kept}): the discrepancy hides the spread behind wider error '
+                           f'bars instead of explaining it')
     elif out.kept_share < min_share or z_null < min_z:
         out.reasons.append(f'beside a discrepancy model it shrinks to {values_text(centre)} '
                            f'({100 * out.kept_share:.0f} % of its distance from no effect, '
@@ -408,6 +424,23 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
     out.passed = not out.reasons
     return out
 
+
+
+def _spread_kept(before, after, size, tolerance, magnitude, max_kept) -> str:
+    """'' when the per-sweep values ``after`` (S', P) spread less than ``before`` as rule 1b of
+    ``check_beside_discrepancy`` asks, else the two spreads in words."""
+    if before is None or len(before) != len(after):
+        return ''
+    def mad(v):
+        return np.nanmedian(np.abs(v - np.nanmedian(v, 0)), 0)
+    was, now = mad(np.asarray(before, float)), mad(after)
+    allowed = np.maximum(max_kept * was, tolerance * np.asarray(size, float))
+    bad = magnitude & (now > allowed)
+    if not bad.any():
+        return ''
+    i = int(np.flatnonzero(bad)[np.argmax((now / np.maximum(was, 1e-12))[bad])])
+    return (f'median deviation {now[i]:.3g} against {was[i]:.3g} without it, '
+            f'{100 * now[i] / max(was[i], 1e-12):.0f} %')
 
 
 def gain_beside_discrepancy(previous: Term, model: Term, train: FitData, heldout, geometry,

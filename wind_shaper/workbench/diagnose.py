@@ -449,7 +449,8 @@ class Diagnosis:
             c.beside = check_beside_discrepancy(final.model, t.candidate.label, t.candidate.null,
                                                 self.train_, self.heldout_, without.model,
                                                 self.geometry_, c.informative,
-                                                tolerance=self.check_tolerance, scale_features=scale)
+                                                tolerance=self.check_tolerance, scale_features=scale,
+                                                values_before=c.values[c.informative])
             if c.beside.passed:
                 break
         if c.beside.passed:

@@ -197,3 +197,58 @@ def test_unequal_curves_give_every_fan_its_own_throttle_curve():
     np.testing.assert_allclose(e.command(u, None), 0.5 ** p)
     np.testing.assert_allclose(e.command(np.ones(7), None), 1.0)   # full command is full thrust
     assert make_effect('unequal_curves', spread=0.0).command(u, None) == pytest.approx(u)
+
+
+# -- the held-out physics (outside the library, written after the checks were set) ---------------
+def test_jet_deflection_moves_edge_jets_inwards_only_with_the_central_fan_on(perfect, rig):
+    from wind_shaper.sim import JetDeflection
+    sim = perfect.with_effects([JetDeflection(pull=0.04, thrust_ref=3.0)])
+    edge_only = np.array([0.5] * 6 + [0.0])
+    assert np.allclose(sim.true_field(edge_only, rig.key_points),
+                       perfect.true_field(edge_only, rig.key_points))
+    on = np.full(7, 0.5)
+    t_c = perfect.thrust(on)[6]
+    state = sim.state(on)
+    moved = np.concatenate([g.centres[g.fan < 6] for g in state.groups if (g.fan >= 0).any()])
+    radii = np.hypot(*moved.T)
+    assert np.allclose(radii, 0.25 - 0.04 * t_c / (t_c + 3.0))
+
+
+def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
+    from wind_shaper.sim import EscCrosstalk
+    sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])
+    pwm = lone('HM1', 0.8)
+    expect = pwm.copy()
+    expect[rig.fans.index('LM1')] = 0.2
+    assert np.allclose(sim.true_field(pwm, rig.key_points), perfect.true_field(expect, rig.key_points))
+    with pytest.raises(EffectError, match='XX9'):
+        SimulatedTunnel(rig, effects=[EscCrosstalk(source='XX9')])
+
+
+def test_wall_return_flow_follows_the_mean_thrust_not_the_local_jet(perfect, rig, lone):
+    from wind_shaper.sim import WallReturnFlow
+    sim = perfect.with_effects([WallReturnFlow(share=0.3, gap=0.03, width=0.04)])
+    ring = np.array([[0.37 * np.cos(a), 0.37 * np.sin(a)] for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)])
+    pwm = lone('HM1', 0.6)
+    deficit = sim.point_field(pwm, ring) - perfect.point_field(pwm, ring)
+    mean_thrust = perfect.thrust(pwm).mean()
+    # as deep on the far side of the tunnel as beside the one running fan
+    assert np.allclose(deficit, -0.3 * mean_thrust, rtol=0.05)
+    assert np.allclose(sim.point_field(np.zeros(7), ring), 0.0)
+
+
+def test_vane_ripple_and_jet_spreading_laws(perfect, rig, lone):
+    from wind_shaper.sim import JetSpreading, VaneRipple
+    ripple = VaneRipple(depth=0.15, wavelength=0.3, direction=0.0, phase=0.0)
+    p = np.array([[0.0, 0.0], [0.15, 0.0]])
+    pwm = np.full(7, 0.5)
+    ratio = (perfect.with_effects([ripple]).point_field(pwm, p) / perfect.point_field(pwm, p))
+    assert ratio == pytest.approx([1.15, 0.85])
+    spread = perfect.with_effects([JetSpreading(exponent=0.12, thrust_ref=3.0)])
+    strong, weak = lone('HM2', 0.8), lone('HM2', 0.2)
+    for pwm in (strong, weak):
+        t = perfect.thrust(pwm)[rig.fans.index('HM2')]
+        widths = [g.width[g.fan == rig.fans.index('HM2')] for g in spread.state(pwm).groups]
+        base = [g.width[g.fan == rig.fans.index('HM2')] for g in perfect.state(pwm).groups]
+        w, w0 = np.concatenate(widths), np.concatenate(base)
+        assert np.allclose(w / w0, np.clip((t / 3.0) ** 0.12, 0.6, 1.6))

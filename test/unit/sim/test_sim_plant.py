@@ -282,3 +282,25 @@ def test_from_config_options(rig):
         SimulatedTunnel.from_config(rig, {'noise': {'relativ': 0.1}})
     with pytest.raises(ConfigError):
         SimulatedTunnel(rig, imperfections=Imperfections.none(3))
+
+
+# -- another jet form ----------------------------------------------------------------------------
+def test_heavy_tailed_jets_keep_the_force_over_the_hub_and_fall_off_slower(rig, lone):
+    from wind_shaper.sim import PlantConstants
+    flat = SimulatedTunnel(rig, imperfections=Imperfections.none(7), noise=NoiseModel.zero())
+    heavy = SimulatedTunnel(rig, imperfections=Imperfections.none(7), noise=NoiseModel.zero(),
+                            constants=PlantConstants(profile='heavy_tail', tail=3.0))
+    hub = rig.fans.positions[rig.fans.index('HM2')]
+    # the amplitude is normalised on the plate over the hub: the same force there
+    assert heavy.true_field(lone('HM2'), hub[None])[0] == pytest.approx(
+        flat.true_field(lone('HM2'), hub[None])[0], rel=1e-6)
+    far = hub + np.array([0.0, 0.0]) - 0.3 * hub / np.linalg.norm(hub)  # 30 cm towards the axis
+    assert heavy.true_field(lone('HM2'), far[None])[0] > 2 * flat.true_field(lone('HM2'), far[None])[0]
+
+
+def test_unknown_jet_profile_is_refused_with_the_choices():
+    from wind_shaper.sim import PlantConstants
+    with pytest.raises(ConfigError, match='flat_top'):
+        PlantConstants(profile='top_hat')
+    with pytest.raises(ConfigError, match='tail'):
+        PlantConstants(profile='heavy_tail', tail=0.5)
