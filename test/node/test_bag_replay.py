@@ -99,15 +99,19 @@ def test_replay_delivers_every_message_in_order_at_the_bags_rate(ros_context, sw
     assert len(got) == len(recorded), f'got {counts} of {[(t, i.count) for t, i in topics.items()]}'
     for topic in topics:  # per topic: same bytes, same order
         assert [r for t, _, r in got if t == topic] == [bytes(r) for t, _, r in recorded if t == topic]
-    # The rate is honoured: the replay spans the bag's time / rate (loosely: a loaded host stalls
-    # processes; how closely each message keeps its offset is bench/replay_timing.py's figure,
-    # not a pass/fail bound here).
+    # The rate is honoured: the replay never runs ahead of the bag's time / rate, and a faster
+    # rate is clearly faster than the bag's own time. No tight upper bound: a loaded host stalls
+    # processes (a run beside a benchmark took 3.4 s for 1.9 s of bag at rate 1); how closely
+    # each message keeps its offset is bench/replay_timing.py's figure, not a pass/fail bound.
     t_bag = np.array([t for _, t, _ in recorded], dtype=float) * 1e-9
-    expected = (t_bag[-1] - t_bag[0]) / rate
+    duration = t_bag[-1] - t_bag[0]
+    expected = duration / rate
     arrivals = sorted(a for _, a, _ in got)
     span = arrivals[-1] - arrivals[0]
-    assert 0.8 * expected < span < 1.5 * expected + 0.25, \
-        f'replay took {span:.3f} s for {expected:.3f} s of bag at rate {rate}'
+    assert span > 0.8 * expected, f'replay took {span:.3f} s for {expected:.3f} s of bag at rate {rate}'
+    if rate > 1:
+        assert span < 0.75 * duration, \
+            f'replay at rate {rate} took {span:.3f} s, not faster than the bag\'s {duration:.3f} s'
     late = np.asarray(stats.late_s)
     assert len(late) == min(stats.total, stats.LATE_KEPT) and np.all(np.isfinite(late))
 
