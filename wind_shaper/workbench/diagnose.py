@@ -55,7 +55,8 @@ import numpy as np
 
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
-from .consistency import SweepCheck, check_across_space, check_across_sweeps, check_beside_discrepancy
+from .consistency import (SweepCheck, check_across_load, check_across_space, check_across_sweeps,
+                          check_beside_discrepancy)
 from .data import FitData, SweepSet
 from .discrepancy import SCALE_FEATURES, describe_outside, outside_text
 from .enough import undecided
@@ -158,7 +159,8 @@ class Diagnosis:
     effect's size a sweep's value may be off besides its standard error; check_space: cut a
     jet's shape through its footprint (``_one_sided``); check_beside: give an effect whose
     values spread across sweeps a second check with a discrepancy model beside it
-    (``_beside_discrepancy``).
+    (``_beside_discrepancy``); check_load: every finding must hold whether the nearest fan runs
+    high or low against the others (``_off_load``).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
@@ -168,7 +170,7 @@ class Diagnosis:
                  noise_sd: float | None = None, min_spread: float = 0.10,
                  check_sweeps: bool = True, describe_outside: bool = True,
                  check_min_sweeps: int = 4, check_tolerance: float = 0.1,
-                 check_space: bool = True, check_beside: bool = True):
+                 check_space: bool = True, check_beside: bool = True, check_load: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -181,6 +183,7 @@ class Diagnosis:
         self.check_tolerance = check_tolerance
         self.check_space = check_space
         self.check_beside = check_beside
+        self.check_load = check_load
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -415,7 +418,8 @@ class Diagnosis:
             if failed:
                 worst = min(failed, key=lambda t: t.check.p_value)
             else:
-                refused = self._one_sided(final, kept, withouts) or self._leans_on_curves(kept)
+                refused = (self._one_sided(final, kept, withouts) or self._off_load(final, kept, withouts)
+                           or self._leans_on_curves(kept))
                 if refused is None:
                     break
                 worst, reason = refused
@@ -474,6 +478,21 @@ class Diagnosis:
                 continue
             why = check_across_space(final.model, t.candidate.label, t.candidate.null, self.train_,
                                      without.model, tolerance=self.check_tolerance)
+            if why:
+                return t, why
+        return None
+
+    def _off_load(self, final: FitResult, kept: list, withouts: list):
+        """(finding, why) for the first finding whose value differs where the nearest fan runs
+        high and where it runs low against the others (``consistency.check_across_load``), or
+        None. A term of another form than the physics (a boundary layer for a return flow
+        down the wall that follows the whole tunnel's thrust) holds in every sweep, since each
+        sweep averages strong and weak jets, but not at every load."""
+        if not self.check_load:
+            return None
+        for t, without in zip(kept, withouts):
+            why = check_across_load(final.model, t.candidate.label, t.candidate.null, self.train_,
+                                    without.model, self.geometry_, tolerance=self.check_tolerance)
             if why:
                 return t, why
         return None

@@ -5,7 +5,8 @@ import pytest
 
 from wind_shaper.sim import make_effect
 from wind_shaper.workbench.commands import simulated_sweeps
-from wind_shaper.workbench.consistency import check_across_space, check_beside_discrepancy
+from wind_shaper.workbench.consistency import (check_across_load, check_across_space,
+                                               check_beside_discrepancy)
 from wind_shaper.workbench.diagnose import Diagnosis
 from wind_shaper.workbench.library import candidate_for_hidden_effect
 
@@ -141,3 +142,45 @@ def test_a_background_draft_beside_a_side_draft_is_judged_where_the_fans_are_off
     # the draft alone leaves nothing on the fans-off sweeps: no background is named
     alone = _diagnose(wb_setup, reference, ('side_draft',), 100)
     assert 'background' not in {t.candidate.name for t in alone.steps_}, alone.summary()
+
+
+def test_a_discrepancy_that_only_widens_the_error_bars_rescues_nothing(wb_setup, reference):
+    # held-out physics (seed 300): LM1's ESC picks up a quarter of HM1's PWM, so LM1 looks
+    # 15-100 % stronger depending on the two commands. Beside a discrepancy whose bump over LM1
+    # times LM1's command shares the gain's own columns, each sweep's gain is ten times looser
+    # and the spread looked ordinary: "LM1 delivers about 35 % more thrust" was named. The
+    # values spread as much as without the discrepancy, so it is refused.
+    d = _diagnose(wb_setup, reference, ('esc_crosstalk',), 300)
+    assert d.steps_ == [], d.summary()
+    (lm1,) = [t for t in d.demoted_ if t.candidate.name == 'fan_gain[LM1]']
+    assert not lm1.check.beside.passed
+    assert 'spread as much as without one' in lm1.check.beside.reasons[0]
+    assert 'library lacks' in d.summary()
+    # without the rule the same check passes: the rule is what refuses it
+    final, without = d._rebuild([lm1]).model, d.baseline_.model
+    loose = check_beside_discrepancy(final, lm1.candidate.label, lm1.candidate.null, d.train_,
+                                     d.heldout_, without, wb_setup.geometry, lm1.check.informative,
+                                     scale_features=())
+    assert loose.passed, loose.reasons
+
+
+def test_a_return_flow_down_the_wall_is_not_named_a_boundary_layer(wb_setup, reference):
+    # held-out physics (seed 400): air comes back down along the wall, a deficit that follows
+    # the whole tunnel's mean thrust. In every sweep it reads as a 1-2 cm boundary layer (each
+    # sweep averages strong and weak jets), but beside a weak jet the "layer" is twice as thick
+    # as beside a strong one: a share of the local flow it is not
+    d = _diagnose(wb_setup, reference, ('wall_return_flow',), 400)
+    assert d.steps_ == [], d.summary()
+    (layer,) = [t for t in d.demoted_ if t.candidate.name == 'wall_layer']
+    assert 'does not hold at every load' in layer.check.reasons[-1]
+    assert 'library lacks' in d.summary()
+
+
+def test_a_real_wall_layer_and_a_real_weak_fan_hold_at_every_load(diagnosed, wb_setup):
+    for effect, name in (('wall_boundary_layer', 'wall_layer'), ('weak_fan', 'fan_gain[HM2]')):
+        d, _ = diagnosed(effect)
+        (t,) = d.steps_
+        assert t.candidate.name == name
+        without = d._rebuild([])
+        assert check_across_load(d.final_.model, t.candidate.label, t.candidate.null, d.train_,
+                                 without.model, wb_setup.geometry) == ''
