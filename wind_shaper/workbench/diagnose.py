@@ -372,6 +372,13 @@ class Diagnosis:
             if not passing:
                 break
             best, fit = min(passing, key=lambda tf: tf[0].bic)
+            # a wider form of a family (swirl growing faster than the imbalance, a free thrust
+            # exponent) must earn its extra parameters as an effect earns its place: by the BIC
+            # bar over the narrower form, when that passes too
+            narrower = [(t, f) for t, f in passing if t.candidate.family == best.candidate.family
+                        and t.k < best.k and t.bic < best.bic + self.min_dbic]
+            if narrower:
+                best, fit = min(narrower, key=lambda tf: (tf[0].k, tf[0].bic))
             polished, fit = self._refine(best, current, current_rmse, data=self.train_, max_nfev=15)
             polished.std = self._uncertainty(polished, current, fit)
             polished.passed, polished.reasons, polished.check = True, [], best.check
