@@ -224,6 +224,13 @@ class HeavyTail(Profile):
         return f'(1 + (d/w)^2/{self.nu:g})^-{self.nu:g}'
 
 
+def edge_profile(constants: 'PlantConstants') -> Profile:
+    """The edge jets' footprint profile that ``constants`` name."""
+    if constants.profile == 'heavy_tail':
+        return HeavyTail(constants.tail)
+    return FlatTop(constants.flatness)
+
+
 class Ring(Profile):
     """The central fan's ring (core + (d/rise)^2) exp(-(d/w)^2): weak on the axis, strongest
     on a ring at d = w sqrt(1 - core rise^2/w^2) (~0.2 m for the defaults)."""
@@ -348,13 +355,6 @@ def _tiled_density(points: np.ndarray, g: JetGroup) -> np.ndarray:
 
 
 # -- plate averaging ----------------------------------------------------------------------------
-def edge_profile(constants: 'PlantConstants') -> Profile:
-    """The edge jets' footprint profile that ``constants`` name."""
-    if constants.profile == 'heavy_tail':
-        return HeavyTail(constants.tail)
-    return FlatTop(constants.flatness)
-
-
 def plate_nodes(side: float, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes (Q, 2) [m, relative to the plate centre] and weights (Q,) summing
     to 1 over the axis-aligned square plate of ``side`` [m]; Q = order^2."""

@@ -318,14 +318,15 @@ def check_across_load(model: Term, label: str, null: dict, train: FitData, previ
     high = load >= median
     free = np.zeros(len(model.theta), bool)
     free[sl] = True
-    cut = _two_halves(model, free, train, diff, (foot & ~high, foot & high), size,
-                      _magnitude(null_values), tolerance, max_nfev)
+    magnitude = _magnitude(null_values)
+    cut = _two_halves(model, free, train, diff, (foot & ~high, foot & high), size, magnitude,
+                      tolerance, max_nfev)
     if cut is None:
         return ''
     a, b, z = cut
     if not np.any(z > max_z):
         return ''
-    i = int(np.flatnonzero(_magnitude(null_values))[np.argmax(z)])
+    i = int(np.flatnonzero(magnitude)[np.argmax(z)])
     name = _short(names[i])
     return (f'it does not hold at every load: its {name} is {a[i]:.3g} where the nearest fan '
             f'runs below {median:.2g} x the mean U^2 and {b[i]:.3g} where it runs above '
@@ -461,9 +462,8 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
 
     magnitude = _magnitude(null_values)
     spread = var + (tolerance * size) ** 2
-    centre = np.sum(values / spread, 0) / np.sum(1.0 / spread, 0)
+    centre, z = _around_weighted_mean(values, spread, magnitude)
     mean_std = np.sqrt(1.0 / np.sum(1.0 / var, 0))
-    z = (np.abs(values - centre) / np.sqrt(spread))[:, magnitude]
     disagree, p_value, holds = judge_spread(z, np.ones(len(values), bool),
                                             max((len(values) - 1) * int(magnitude.sum()), 1),
                                             max_z=max_z, max_disagree=max_disagree, min_p=min_p)
@@ -473,7 +473,7 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
     z_null = float(np.max(np.abs(centre - ref)[magnitude] / mean_std[magnitude]))
     out = BesideCheck(names, values, np.sqrt(var), centre, mean_std, p_value, int(disagree.sum()),
                       kept / max(far, 1e-12), z_null)
-    spread_kept = _spread_kept(values_before, values, var, size, tolerance, magnitude,
+    spread_kept = _spread_kept(values_before, values, spread, size, tolerance, magnitude,
                                max_spread_kept, min_p)
     if not holds:
         out.reasons.append(f'beside a discrepancy model it still does not hold across sweeps '
@@ -499,11 +499,18 @@ def check_beside_discrepancy(model: Term, label: str, null: dict, train: FitData
 
 
 
-def _spread_kept(before, after, after_var, size, tolerance, magnitude, max_kept, min_p) -> str:
+def _around_weighted_mean(values: np.ndarray, spread: np.ndarray, magnitude: np.ndarray):
+    """The precision-weighted mean (P,) of per-sweep ``values`` (S, P) with variances
+    ``spread``, and each value's z-score (S, P') against it on the ``magnitude`` elements."""
+    centre = np.sum(values / spread, 0) / np.sum(1.0 / spread, 0)
+    return centre, (np.abs(values - centre) / np.sqrt(spread))[:, magnitude]
+
+
+def _spread_kept(before, after, spread, size, tolerance, magnitude, max_kept, min_p) -> str:
     """'' unless rule 1b of ``check_beside_discrepancy`` refuses: the per-sweep values
-    ``after`` (S', P) with variances ``after_var`` beside the discrepancy spread no less than
-    ``before`` (the values without it), and ``before`` judged with those error bars looks
-    ordinary; else the two spreads in words."""
+    ``after`` (S', P) beside the discrepancy (variances with the tolerance, ``spread``) spread
+    no less than ``before`` (the values without it), and ``before`` judged with those error
+    bars looks ordinary; else the two spreads in words."""
     if before is None or len(before) != len(after) or len(after) < 2:
         return ''
     before = np.asarray(before, float)
@@ -515,14 +522,12 @@ def _spread_kept(before, after, after_var, size, tolerance, magnitude, max_kept,
     kept = magnitude & (now > allowed)
     if not kept.any():
         return ''
-    spread = np.asarray(after_var, float) + (tolerance * np.asarray(size, float)) ** 2
     ok = np.all(np.isfinite(before), axis=1)
     if ok.sum() < 2:
         return ''
-    b, sp = before[ok], spread[ok]
-    centre = np.sum(b / sp, 0) / np.sum(1.0 / sp, 0)
-    z = (np.abs(b - centre) / np.sqrt(sp))[:, magnitude]
-    p_value = float(chi2.sf(np.sum(z ** 2), max((len(b) - 1) * int(magnitude.sum()), 1)))
+    _, z = _around_weighted_mean(before[ok], spread[ok], magnitude)
+    _, p_value, _ = judge_spread(z, np.ones(int(ok.sum()), bool),
+                                 max((int(ok.sum()) - 1) * int(magnitude.sum()), 1))
     if p_value < min_p:  # those error bars would have seen the old spread: the check had power
         return ''
     i = int(np.flatnonzero(kept)[np.argmax((now / np.maximum(was, 1e-12))[kept])])
