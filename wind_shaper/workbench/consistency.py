@@ -219,11 +219,14 @@ def check_across_sweeps(model: Term, label: str, null: dict, train: FitData, hel
 
 
 def _two_halves(model: Term, free: np.ndarray, train: FitData, diff: np.ndarray, halves,
-                size: np.ndarray, magnitude: np.ndarray, tolerance: float, max_nfev: int):
+                size: np.ndarray, magnitude: np.ndarray, names: list, tolerance: float,
+                max_z: float, max_nfev: int):
     """Refit the ``free`` parameters of ``model`` on each of two row masks ``halves`` of
-    ``train`` (the rest held) -> (values a, values b, z of their difference per magnitude
-    element), or None when a half is too small or the effect (its change of the prediction
-    ``diff``) barely reaches it: under a quarter of the other half's RMS change."""
+    ``train`` (the rest held) and compare them on the ``magnitude`` elements -> None when they
+    agree within ``max_z`` (their standard errors and ``tolerance`` x the effect's size in
+    quadrature), when a half is too small, or when the effect (its change of the prediction
+    ``diff``) barely reaches one half (under a quarter of the other's RMS change); else (short
+    name, value on the first half, value on the second, z) of the worst element."""
     fits, signal = [], []
     for rows in halves:
         signal.append(float(np.sqrt(np.mean(diff[rows] ** 2))) if rows.any() else 0.0)
@@ -233,7 +236,11 @@ def _two_halves(model: Term, free: np.ndarray, train: FitData, diff: np.ndarray,
         return None
     a, b = fits
     sigma = np.sqrt(a.theta_std ** 2 + b.theta_std ** 2 + (tolerance * size) ** 2)
-    return a.theta, b.theta, (np.abs(a.theta - b.theta) / sigma)[magnitude]
+    z = (np.abs(a.theta - b.theta) / sigma)[magnitude]
+    if not np.any(z > max_z):
+        return None
+    i = int(np.flatnonzero(magnitude)[np.argmax(z)])
+    return _short(names[i]), a.theta[i], b.theta[i], float(np.max(z))
 
 
 def check_across_space(model: Term, label: str, null: dict, train: FitData, previous: Term, *,
@@ -263,17 +270,13 @@ def check_across_space(model: Term, label: str, null: dict, train: FitData, prev
     magnitude = _magnitude(null_values)
     for axis, word in ((0, 'x'), (1, 'y')):
         upper = train.Z[:, axis] >= centre[axis]
-        cut = _two_halves(model, free, train, diff, (~upper, upper), size, magnitude, tolerance,
-                          max_nfev)
-        if cut is None:
-            continue
-        a, b, z = cut
-        if np.any(z > max_z):
-            i = int(np.flatnonzero(magnitude)[np.argmax(z)])
-            name = _short(names[i])
+        differ = _two_halves(model, free, train, diff, (~upper, upper), size, magnitude, names,
+                             tolerance, max_z, max_nfev)
+        if differ is not None:
+            name, a, b, z = differ
             return (f'it does not hold on both sides of its footprint: its {name} is '
-                    f'{a[i]:.3g} for {word} < {centre[axis]:+.2f} m and {b[i]:.3g} '
-                    f'beyond ({np.max(z):.1f} standard errors apart): it patches a pattern to one '
+                    f'{a:.3g} for {word} < {centre[axis]:+.2f} m and {b:.3g} '
+                    f'beyond ({z:.1f} standard errors apart): it patches a pattern to one '
                     f'side')
     return ''
 
@@ -319,18 +322,14 @@ def check_across_load(model: Term, label: str, null: dict, train: FitData, previ
     free = np.zeros(len(model.theta), bool)
     free[sl] = True
     magnitude = _magnitude(null_values)
-    cut = _two_halves(model, free, train, diff, (foot & ~high, foot & high), size, magnitude,
-                      tolerance, max_nfev)
-    if cut is None:
+    differ = _two_halves(model, free, train, diff, (foot & ~high, foot & high), size, magnitude,
+                         names, tolerance, max_z, max_nfev)
+    if differ is None:
         return ''
-    a, b, z = cut
-    if not np.any(z > max_z):
-        return ''
-    i = int(np.flatnonzero(magnitude)[np.argmax(z)])
-    name = _short(names[i])
-    return (f'it does not hold at every load: its {name} is {a[i]:.3g} where the nearest fan '
-            f'runs below {median:.2g} x the mean U^2 and {b[i]:.3g} where it runs above '
-            f'({np.max(z):.1f} standard errors apart): the physics follows the fans\' commands '
+    name, a, b, z = differ
+    return (f'it does not hold at every load: its {name} is {a:.3g} where the nearest fan '
+            f'runs below {median:.2g} x the mean U^2 and {b:.3g} where it runs above '
+            f'({z:.1f} standard errors apart): the physics follows the fans\' commands '
             f'in another way than this term')
 
 
