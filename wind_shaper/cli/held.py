@@ -22,6 +22,10 @@ from .service import _not_running, _Session
 
 #: Tries of a point that fails (the plate not still in time, it moved) before moving on.
 AUTO_TRIES = 2
+#: A point's request goes out again this often while no answer came [s].
+HOLD_RESEND_S = 15.0
+#: What the coordinator's refusal says while another procedure runs.
+BUSY = 'wait for it'
 
 
 def _plan(setup, args):
@@ -98,7 +102,10 @@ def run_held(setup, args) -> int:
                                         x=p.x, y=p.y, tolerance_m=args.tolerance,
                                         samples=args.samples, timeout_s=args.timeout)
             try:
-                answer = session.call(client, request, args.timeout + 60.0)
+                # asked again while no answer came (a lost request or reply); a point still
+                # recording refuses the copies as busy, and its own answer is taken
+                answer = session.call(client, request, args.timeout + 60.0, resend_s=HOLD_RESEND_S,
+                                      accept=lambda r: BUSY not in r.message)
             except KeyboardInterrupt:
                 cancel = session.node.create_client(Trigger, names.CANCEL_ITERATION)
                 session.call(cancel, Trigger.Request(), args.wait)
@@ -115,7 +122,7 @@ def run_held(setup, args) -> int:
                 print(f'  recorded: {answer.message}', flush=True)
                 previous = queue.pop(0)
                 continue
-            if 'wait for it' in answer.message and time.monotonic() < busy_until:
+            if BUSY in answer.message and time.monotonic() < busy_until:
                 time.sleep(1.0)   # the coordinator still finishes another request (a killed caller's)
                 continue
             print(f'  not recorded: {answer.message}', file=sys.stderr, flush=True)

@@ -26,6 +26,8 @@ START_HINT = ('start the graph with `wind-shaper up --sim`, or give the namespac
 #: While an iteration runs the coordinator publishes its status at 2 Hz; this long without one
 #: means it is gone [s].
 STALE_STATUS_S = 10.0
+#: An unanswered request to the coordinator goes out again this often [s] (see _Session.call).
+RESEND_S = 2.5
 RUNNING_STATES = ('commanding', 'sweeping', 'estimating', 'updating')
 
 
@@ -77,13 +79,36 @@ class _Session:
     def wait_for_service(self, client, timeout_s: float) -> bool:
         return self.spin_until(client.service_is_ready, timeout_s)
 
-    def call(self, client, request, timeout_s: float):
-        """The response, or None when none came within ``timeout_s`` [s]."""
-        future = client.call_async(request)
-        if not self.spin_until(future.done, timeout_s):
-            client.remove_pending_request(future)
-            return None
-        return future.result()
+    def call(self, client, request, timeout_s: float, *, resend_s: float | None = None,
+             accept=lambda response: True):
+        """The first response ``accept`` takes, else the last one that came, else None, within
+        ``timeout_s`` [s]. While none was taken the request goes out again every ``resend_s``
+        [s] (default max(RESEND_S, timeout_s / 4); 0: never), and every earlier request still
+        counts: Fast DDS drops a request sent before the server matched this client, or a reply
+        before the server matched its reply reader (seen after a restarted coordinator, on a
+        loaded machine), so a request sent once can wait in vain. Resend only what may run
+        twice, or what a busy server refuses."""
+        deadline = time.monotonic() + timeout_s
+        resend_s = max(RESEND_S, timeout_s / 4) if resend_s is None else resend_s
+        futures, last = [client.call_async(request)], [None]
+        sent_at = time.monotonic()
+
+        def taken() -> bool:
+            nonlocal sent_at
+            for f in [f for f in futures if f.done()]:
+                futures.remove(f)
+                last[0] = f.result()
+                if accept(last[0]):
+                    return True
+            if resend_s > 0 and time.monotonic() - sent_at >= resend_s:
+                futures.append(client.call_async(request))
+                sent_at = time.monotonic()
+            return False
+
+        self.spin_until(taken, max(deadline - time.monotonic(), 0.0))
+        for f in futures:
+            client.remove_pending_request(f)
+        return last[0]
 
     def interrupt(self, future, wait_s: float, tty: bool, grace_s: float) -> None:
         """Ctrl-C during a long call: ask the coordinator to cancel what runs, say what it
