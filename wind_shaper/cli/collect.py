@@ -193,7 +193,7 @@ def _call_with_resume(session, client, request, latest, args, tty):
         try:
             session.spin_until(finished_or_gone, limit, on_tick=show)
         except KeyboardInterrupt:
-            session.interrupt(future, args.wait, tty, 30.0)
+            session.interrupt(future.done, args.wait, tty, 30.0)
             return 'interrupted'
         if tty:
             print('\r' + ' ' * 100 + '\r', end='')

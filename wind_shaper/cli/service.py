@@ -110,9 +110,9 @@ class _Session:
             client.remove_pending_request(f)
         return last[0]
 
-    def interrupt(self, future, wait_s: float, tty: bool, grace_s: float) -> None:
+    def interrupt(self, ended, wait_s: float, tty: bool, grace_s: float) -> None:
         """Ctrl-C during a long call: ask the coordinator to cancel what runs, say what it
-        answered, and give the call ``grace_s`` [s] to end."""
+        answered, and give the call ``grace_s`` [s] to end (``ended()`` true)."""
         from std_srvs.srv import Trigger
         if tty:
             print()
@@ -120,7 +120,7 @@ class _Session:
         answer = self.call(cancel, Trigger.Request(), wait_s)
         print('interrupted: ' + (answer.message if answer is not None else
                                  'the coordinator did not answer the cancel request'), file=sys.stderr)
-        self.spin_until(future.done, grace_s)
+        self.spin_until(ended, grace_s)
 
     def latest_status(self):
         """Subscribe to the latched status; returns a one-element list updated in place."""
@@ -174,6 +174,44 @@ def format_status(s) -> str:
     return '\n'.join(lines)
 
 
+class _IterationCall:
+    """One RunIteration request, sent again (every RESEND_S [s]) until the coordinator shows it
+    runs an iteration: Fast DDS drops a request that reaches a just restarted coordinator
+    before it matched this caller, and a coordinator that never got the request publishes no
+    status. A copy that arrives while the first runs is refused as busy, and the refusal is
+    ignored while an earlier request is still open. Once an iteration runs nothing more is
+    sent: a second request could run a second iteration."""
+
+    def __init__(self, client, request, status, started: float):
+        self.client, self.request, self.status, self.started = client, request, status, started
+        self.futures = [client.call_async(request)]
+        self.sent_at = started
+        self.answer = None
+        self.received = False   # an iteration ran since the request went out
+
+    def _runs(self) -> bool:
+        s, heard = self.status
+        return s is not None and heard >= self.started and s.state in RUNNING_STATES
+
+    def poll(self) -> bool:
+        """True once an answer is there (``answer``)."""
+        for f in [f for f in self.futures if f.done()]:
+            self.futures.remove(f)
+            r = f.result()
+            if r.success or 'wait for it' not in r.message or not self.futures:
+                self.answer = r
+                return True
+        self.received = self.received or self._runs()
+        if not self.received and time.monotonic() - self.sent_at >= RESEND_S:
+            self.futures.append(self.client.call_async(self.request))
+            self.sent_at = time.monotonic()
+        return False
+
+    def forget(self) -> None:
+        for f in self.futures:
+            self.client.remove_pending_request(f)
+
+
 # ---------------------------------------------------------------------------------- commands
 def _cmd_iterate(args) -> int:
     from wind_shaper_msgs.srv import RunIteration
@@ -202,12 +240,12 @@ def _cmd_iterate(args) -> int:
         for i in range(args.count):
             request = RunIteration.Request(target=args.target if i == 0 else '',
                                            step_gain=args.gain, timeout_s=args.timeout)
-            future = client.call_async(request)
             started = time.monotonic()
+            calls = _IterationCall(client, request, status, started)
             shown[0] = ''
 
             def finished_or_gone():
-                if future.done():
+                if calls.poll():
                     return True
                 heard = max(status[1], started)
                 return time.monotonic() - heard > STALE_STATUS_S
@@ -216,16 +254,16 @@ def _cmd_iterate(args) -> int:
             try:
                 session.spin_until(finished_or_gone, limit, on_tick=show)
             except KeyboardInterrupt:
-                session.interrupt(future, args.wait, tty, 10.0)
+                session.interrupt(calls.poll, args.wait, tty, 10.0)
                 return 130
             if tty:
                 print('\r' + ' ' * 72 + '\r', end='')
-            if not future.done():
-                client.remove_pending_request(future)
+            r = calls.answer
+            calls.forget()
+            if r is None:
                 print(f'no answer from the coordinator (no status for {STALE_STATUS_S:g} s or the '
                       f'time limit passed): check that it is still running', file=sys.stderr)
                 return 2
-            r = future.result()
             if not r.success:
                 print(f'iteration refused or failed: {r.message}', file=sys.stderr)
                 return 1
