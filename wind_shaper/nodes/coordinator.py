@@ -147,8 +147,9 @@ class CoordinatorNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.create_subscription(FanCommand, names.FAN_APPLIED, self._on_fans_applied, qos.LATCHED,
                                  callback_group=self._cb)
-        self.create_subscription(PoseStamped, names.PLATE_POSE, self._on_plate_pose, qos.STREAM,
-                                 callback_group=self._cb)
+        # the plate's poses only while a procedure runs: at 100 Hz on this single-threaded
+        # executor they cost about 20 % of a core, also while the coordinator waits for a call
+        self._pose_sub = None
         self._begin_client = self.create_client(Trigger, names.BEGIN_SWEEP, callback_group=self._cb)
         self._estimate_client = self.create_client(EstimateField, names.ESTIMATE_FIELD,
                                                    callback_group=self._cb)
@@ -540,11 +541,18 @@ class CoordinatorNode(Node):
         self.sweep_duration_s = (sweep_duration_s if sweep_duration_s > 0
                                  else self.params.sweep_duration_s)
         self._waits.start(timeout_s)
+        if self._pose_sub is None:
+            self._pose_sub = self.create_subscription(PoseStamped, names.PLATE_POSE,
+                                                      self._on_plate_pose, qos.STREAM,
+                                                      callback_group=self._cb)
 
     def end_procedure(self) -> None:
         with self._lock:
             self._running = False
             self._counting = False
+            sub, self._pose_sub = self._pose_sub, None
+        if sub is not None:
+            self.destroy_subscription(sub)
         self._publish_status()   # the commands in force may have changed (an experiment: off)
 
     def poke(self) -> None:
