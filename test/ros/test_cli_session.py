@@ -70,15 +70,17 @@ def test_without_resending_the_lost_reply_leaves_no_answer(trigger_server):
     assert waited >= 3.0
 
 
-def test_a_refusal_the_caller_does_not_accept_is_asked_again(trigger_server):
-    trigger_server['replies'] = [(False, 'busy: wait for it'), (False, 'busy: wait for it'),
-                                 (True, 'recorded')]
+def test_a_refused_copy_waits_for_the_open_request(trigger_server):
+    # the first request's reply is lost; a copy is refused as busy while it is open, and the
+    # next copy is answered
+    trigger_server['replies'] = [None, (False, 'busy: wait for it'), (True, 'recorded')]
     answer, _ = _call(20.0, resend_s=0.5, accept=lambda r: 'wait for it' not in r.message)
     assert answer.success and answer.message == 'recorded'
     assert trigger_server['seen'] == 3
 
 
-def test_only_refusals_within_the_time_give_the_last_refusal(trigger_server):
+def test_a_refusal_with_no_other_request_open_ends_the_call_at_once(trigger_server):
     trigger_server['replies'] = [(False, 'busy: wait for it')] * 100
-    answer, _ = _call(2.0, resend_s=0.5, accept=lambda r: False)
+    answer, waited = _call(20.0, resend_s=5.0, accept=lambda r: 'wait for it' not in r.message)
     assert answer is not None and not answer.success and 'wait for it' in answer.message
+    assert waited < 5.0 and trigger_server['seen'] == 1

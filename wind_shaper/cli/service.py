@@ -81,10 +81,11 @@ class _Session:
 
     def call(self, client, request, timeout_s: float, *, resend_s: float | None = None,
              accept=lambda response: True):
-        """The first response ``accept`` takes, else the last one that came, else None, within
-        ``timeout_s`` [s]. While none was taken the request goes out again every ``resend_s``
-        [s] (default max(RESEND_S, timeout_s / 4); 0: never), and every earlier request still
-        counts: Fast DDS drops a request sent before the server matched this client, or a reply
+        """The first response ``accept`` takes; a response it refuses when no other request is
+        open (a busy server's refusal: the caller decides when to ask again); else the last
+        that came, or None, at ``timeout_s`` [s]. While none was taken the request goes out
+        again every ``resend_s`` [s] (default max(RESEND_S, timeout_s / 4); 0: never), and
+        every earlier request still counts: Fast DDS drops a request sent before the server matched this client, or a reply
         before the server matched its reply reader (seen after a restarted coordinator, on a
         loaded machine), so a request sent once can wait in vain. Resend only what may run
         twice, or what a busy server refuses."""
@@ -98,7 +99,7 @@ class _Session:
             for f in [f for f in futures if f.done()]:
                 futures.remove(f)
                 last[0] = f.result()
-                if accept(last[0]):
+                if accept(last[0]) or not futures:
                     return True
             if resend_s > 0 and time.monotonic() - sent_at >= resend_s:
                 futures.append(client.call_async(request))
