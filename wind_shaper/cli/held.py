@@ -18,14 +18,12 @@ from dataclasses import asdict
 from pathlib import Path
 
 from ..ros import names
-from .service import _not_running, _Session
+from .service import BUSY, _not_running, _Session
 
 #: Tries of a point that fails (the plate not still in time, it moved) before moving on.
 AUTO_TRIES = 2
 #: A point's request goes out again this often while no answer came [s].
 HOLD_RESEND_S = 15.0
-#: What the coordinator's refusal says while another procedure runs.
-BUSY = 'wait for it'
 
 
 def _plan(setup, args):

@@ -28,6 +28,8 @@ START_HINT = ('start the graph with `wind-shaper up --sim`, or give the namespac
 STALE_STATUS_S = 10.0
 #: An unanswered request to the coordinator goes out again this often [s] (see _Session.call).
 RESEND_S = 2.5
+#: What the coordinator's refusal says while another procedure runs.
+BUSY = 'wait for it'
 RUNNING_STATES = ('commanding', 'sweeping', 'estimating', 'updating')
 
 
@@ -81,35 +83,16 @@ class _Session:
 
     def call(self, client, request, timeout_s: float, *, resend_s: float | None = None,
              accept=lambda response: True):
-        """The first response ``accept`` takes; a response it refuses when no other request is
-        open (a busy server's refusal: the caller decides when to ask again); else the last
-        that came, or None, at ``timeout_s`` [s]. While none was taken the request goes out
-        again every ``resend_s`` [s] (default max(RESEND_S, timeout_s / 4); 0: never), and
-        every earlier request still counts: Fast DDS drops a request sent before the server matched this client, or a reply
-        before the server matched its reply reader (seen after a restarted coordinator, on a
-        loaded machine), so a request sent once can wait in vain. Resend only what may run
+        """The response ``accept`` takes, or one it refuses when no other request is open (a
+        busy server's refusal: the caller decides when to ask again); at ``timeout_s`` [s] the
+        last that came, or None. The request goes out again every ``resend_s`` [s] (default
+        max(RESEND_S, timeout_s / 4); 0: never): see ``_Resending``. Resend only what may run
         twice, or what a busy server refuses."""
-        deadline = time.monotonic() + timeout_s
         resend_s = max(RESEND_S, timeout_s / 4) if resend_s is None else resend_s
-        futures, last = [client.call_async(request)], [None]
-        sent_at = time.monotonic()
-
-        def taken() -> bool:
-            nonlocal sent_at
-            for f in [f for f in futures if f.done()]:
-                futures.remove(f)
-                last[0] = f.result()
-                if accept(last[0]) or not futures:
-                    return True
-            if resend_s > 0 and time.monotonic() - sent_at >= resend_s:
-                futures.append(client.call_async(request))
-                sent_at = time.monotonic()
-            return False
-
-        self.spin_until(taken, max(deadline - time.monotonic(), 0.0))
-        for f in futures:
-            client.remove_pending_request(f)
-        return last[0]
+        calls = _Resending(client, request, resend_s, accept=accept)
+        self.spin_until(calls.poll, timeout_s)
+        calls.forget()
+        return calls.answer
 
     def interrupt(self, ended, wait_s: float, tty: bool, grace_s: float) -> None:
         """Ctrl-C during a long call: ask the coordinator to cancel what runs, say what it
@@ -175,35 +158,33 @@ def format_status(s) -> str:
     return '\n'.join(lines)
 
 
-class _IterationCall:
-    """One RunIteration request, sent again (every RESEND_S [s]) until the coordinator shows it
-    runs an iteration: Fast DDS drops a request that reaches a just restarted coordinator
-    before it matched this caller, and a coordinator that never got the request publishes no
-    status. A copy that arrives while the first runs is refused as busy, and the refusal is
-    ignored while an earlier request is still open. Once an iteration runs nothing more is
-    sent: a second request could run a second iteration."""
+class _Resending:
+    """A request to a service, sent again every ``resend_s`` [s] (0: never) while no answer was
+    taken and ``may_resend()``; every earlier request still counts. Fast DDS drops a request
+    sent before the server matched the caller, or a reply before the server matched its reply
+    reader (seen after a restarted coordinator, on a loaded machine), so a request sent once
+    can wait in vain. ``poll()`` is true once a response ``accept`` takes came, or one it
+    refuses when no other request is open; ``answer`` is the last response that came."""
 
-    def __init__(self, client, request, status, started: float):
-        self.client, self.request, self.status, self.started = client, request, status, started
+    def __init__(self, client, request, resend_s: float, *, accept=lambda response: True,
+                 may_resend=lambda: True):
+        self.client, self.request, self.resend_s = client, request, resend_s
+        self.accept, self.may_resend = accept, may_resend
         self.futures = [client.call_async(request)]
-        self.sent_at = started
+        self.sent_at = time.monotonic()
         self.answer = None
-        self.received = False   # an iteration ran since the request went out
-
-    def _runs(self) -> bool:
-        s, heard = self.status
-        return s is not None and heard >= self.started and s.state in RUNNING_STATES
+        self.done = False
 
     def poll(self) -> bool:
-        """True once an answer is there (``answer``)."""
         for f in [f for f in self.futures if f.done()]:
             self.futures.remove(f)
-            r = f.result()
-            if r.success or 'wait for it' not in r.message or not self.futures:
-                self.answer = r
+            self.answer = f.result()
+            if self.accept(self.answer) or not self.futures:
+                self.done = True
                 return True
-        self.received = self.received or self._runs()
-        if not self.received and time.monotonic() - self.sent_at >= RESEND_S:
+        # may_resend first, on every poll: it may watch for what ends the resending
+        if (self.may_resend() and self.resend_s > 0
+                and time.monotonic() - self.sent_at >= self.resend_s):
             self.futures.append(self.client.call_async(self.request))
             self.sent_at = time.monotonic()
         return False
@@ -211,6 +192,25 @@ class _IterationCall:
     def forget(self) -> None:
         for f in self.futures:
             self.client.remove_pending_request(f)
+
+
+class _IterationCall(_Resending):
+    """A RunIteration request, sent again every RESEND_S [s] until the coordinator's status
+    shows an iteration running since ``started`` (a coordinator that never got the request
+    publishes none), and never after: a second request could run a second iteration. A copy
+    refused as busy while an earlier request is open is not the answer."""
+
+    def __init__(self, client, request, status, started: float):
+        self.status, self.started = status, started
+        self.received = False   # an iteration ran since the request went out
+        super().__init__(client, request, RESEND_S, accept=lambda r: r.success or BUSY not in r.message,
+                         may_resend=self._may_resend)
+
+    def _may_resend(self) -> bool:
+        s, heard = self.status
+        self.received = self.received or (s is not None and heard >= self.started
+                                          and s.state in RUNNING_STATES)
+        return not self.received
 
 
 # ---------------------------------------------------------------------------------- commands
@@ -259,7 +259,7 @@ def _cmd_iterate(args) -> int:
                 return 130
             if tty:
                 print('\r' + ' ' * 72 + '\r', end='')
-            r = calls.answer
+            r = calls.answer if calls.done else None
             calls.forget()
             if r is None:
                 print(f'no answer from the coordinator (no status for {STALE_STATUS_S:g} s or the '
