@@ -17,10 +17,11 @@ from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
-from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, EscCrosstalk,
-                                 HoneycombBlockage, JetDeflection, JetSpreading, PlenumStarvation,
+from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, OUTSIDE_SECOND,
+                                 CoandaAttachment, EscCrosstalk, HoneycombBlockage, HubShadow,
+                                 JetDeflection, JetSpreading, NeighbourStarvation, PlenumStarvation,
                                  QuadraticSwirl, SideDraft, StandWake, ThermalGradient, VaneRipple,
-                                 WallReturnFlow)
+                                 WallLeak, WallReturnFlow)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
@@ -29,7 +30,8 @@ __all__ = [
     'TiltedFan', 'ElongatedFootprint', 'BackgroundDraft', 'HIDDEN_EFFECTS', 'make_effect',
     'HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
-    'JetSpreading', 'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OTHER_FORM',
+    'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
+    'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]

@@ -252,3 +252,59 @@ def test_vane_ripple_and_jet_spreading_laws(perfect, rig, lone):
         base = [g.width[g.fan == rig.fans.index('HM2')] for g in perfect.state(pwm).groups]
         w, w0 = np.concatenate(widths), np.concatenate(base)
         assert np.allclose(w / w0, np.clip((t / 3.0) ** 0.12, 0.6, 1.6))
+
+
+# -- the second batch of held-out physics ------------------------------------------------------------
+def test_hub_shadow_hollows_each_jet_core_and_spares_its_flanks(perfect, rig, lone):
+    from wind_shaper.sim import HubShadow
+    sim = perfect.with_effects([HubShadow(depth=0.3, core=0.45)])
+    pwm = lone('HM2', 0.6)
+    hub = rig.fans.positions[rig.fans.index('HM2')]
+    w = [g.width[g.fan == rig.fans.index('HM2')] for g in perfect.state(pwm).groups]
+    w = float(np.concatenate(w)[0])
+    at = np.array([hub, hub + [1.5 * w, 0.0]])
+    ratio = sim.point_field(pwm, at) / perfect.point_field(pwm, at)
+    assert ratio[0] == pytest.approx(0.7, abs=0.02)      # the core loses depth x its peak
+    assert ratio[1] > 0.97                                # the flank barely changes
+    assert np.allclose(sim.point_field(np.zeros(7), at), 0.0)
+
+
+def test_neighbour_starvation_is_local_to_a_fans_neighbours(perfect, rig):
+    from wind_shaper.sim import NeighbourStarvation
+    effect = NeighbourStarvation(coupling=0.3, thrust_ref=4.0)
+    sim = perfect.with_effects([effect])
+    names = list(rig.fans.names)
+    lm1, hm1, hm2 = names.index('LM1'), names.index('HM1'), names.index('HM2')
+    pwm = np.zeros(7)
+    pwm[[lm1, hm2]] = 0.6     # LM1 and HM2 sit on opposite sides of HM1 on the hexagon
+    t0 = perfect.thrust(pwm)
+    t = sim.thrust(pwm)
+    assert t[lm1] == pytest.approx(t0[lm1])  # its neighbours HM1, HM3 and CM idle
+    pwm[hm1] = 0.6
+    t0, t = perfect.thrust(pwm), sim.thrust(pwm)
+    # LM1's neighbours: HM1, HM3 and CM; only HM1 runs
+    assert t[lm1] == pytest.approx(t0[lm1] / (1 + 0.3 * (t0[hm1] / 3) / 4.0), rel=1e-6)
+
+
+def test_coanda_attachment_moves_edge_jets_out_by_their_own_thrust(perfect, rig):
+    from wind_shaper.sim import CoandaAttachment
+    sim = perfect.with_effects([CoandaAttachment(pull=0.04, thrust_ref=4.0)])
+    pwm = np.array([0.2, 0.8, 0.2, 0.8, 0.2, 0.8, 0.5])
+    t = perfect.thrust(pwm)
+    for g in sim.state(pwm).groups:
+        for row in np.flatnonzero(g.fan >= 0):
+            j = g.fan[row]
+            r0 = np.hypot(*rig.fans.positions[j])
+            expect = 0.0 if r0 < 1e-6 else r0 + 0.04 * t[j] / (t[j] + 4.0)
+            assert np.hypot(*g.centres[row]) == pytest.approx(expect, abs=1e-9)
+
+
+def test_wall_leak_follows_the_mean_thrust_not_the_local_jet(perfect, rig, lone):
+    from wind_shaper.sim import WallLeak
+    sim = perfect.with_effects([WallLeak(angle=200.0, share=0.5, spread=0.1)])
+    gap = 0.40 * np.array([[np.cos(np.radians(200.0)), np.sin(np.radians(200.0))]])
+    for name in ('HM2', 'LM1'):  # a fan near the gap, and one across the tunnel
+        pwm = lone(name, 0.6)
+        deficit = sim.point_field(pwm, gap) - perfect.point_field(pwm, gap)
+        assert deficit[0] == pytest.approx(-0.5 * perfect.thrust(pwm).mean(), rel=1e-6)
+    assert np.allclose(sim.point_field(np.zeros(7), gap), 0.0)
