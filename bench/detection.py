@@ -64,6 +64,32 @@ OTHER_TUNNEL = {
     'noise': {'relative': 0.05, 'absolute': 0.04},
 }
 
+#: A tunnel of another layout: a 3 x 3 fan wall 20 cm apart (checkerboard CW/CCW, no central
+#: fan), the default plant otherwise. Effects on one fan act on these fans instead.
+GRID = {'rows': 3, 'cols': 3, 'pitch': 0.2}
+GRID_FANS = {'weak_fan': {'fan': 'F01_00'}, 'tilted_fan': {'fan': 'F02_01'},
+             'elongated_footprint': {'fan': 'F02_01'},
+             'esc_crosstalk': {'fan': 'F00_01', 'source': 'F00_00'}}
+#: Effects that change nothing on the grid (the central fan's pull: it has no central fan).
+NOT_ON_GRID = {'jet_deflection'}
+
+
+def setup_for(tunnel: str):
+    """The run's ``Setup``: the config folder's, with the grid's fans for ``tunnel='grid'``."""
+    from dataclasses import replace
+    from wind_shaper.app import Setup
+    from wind_shaper.core.geometry import FanArray
+    setup = Setup.load()
+    if tunnel != 'grid':
+        return setup
+    fans = FanArray.grid(GRID['rows'], GRID['cols'], GRID['pitch'])
+    return replace(setup, geometry=replace(setup.geometry, fans=fans))
+
+
+def build_effect(name: str, tunnel: str):
+    from wind_shaper.sim import make_effect
+    return make_effect(name, **(GRID_FANS.get(name, {}) if tunnel == 'grid' else {}))
+
 
 #: Diagnosis settings of this run (--set NAME=VALUE), the defaults when empty.
 DIAGNOSIS: dict = {}
@@ -85,8 +111,8 @@ def cases(quick: bool, counts=None) -> list[tuple[str, tuple, int]]:
 
 
 def make_tunnel(setup, tunnel: str, seed: int, effects=()):
-    """The simulated tunnel ``tunnel`` ('default' or 'other') at ``seed`` with ``effects``."""
-    if tunnel == 'default':
+    """The simulated tunnel ``tunnel`` ('default', 'other' or 'grid') at ``seed`` with ``effects``."""
+    if tunnel in ('default', 'grid'):
         return setup.make_sim(seed=seed, effects=effects)
     from wind_shaper.sim import SimulatedTunnel
     cfg = {**dict(setup.sim_config), **OTHER_TUNNEL, 'seed': seed, 'effects': []}
@@ -96,8 +122,7 @@ def make_tunnel(setup, tunnel: str, seed: int, effects=()):
 def reference_path(tunnel: str) -> Path:
     """The reference model file diagnosed on ``tunnel``; the other tunnel's is commissioned
     (seed 100, the calibration batch of ``wind-shaper model fit --commission``) on first use."""
-    from wind_shaper.app import Setup
-    setup = Setup.load()
+    setup = setup_for(tunnel)
     if tunnel == 'default':
         return setup.config_dir / 'reference.yaml'
     path = ROOT / 'bench' / 'out' / f'reference_{tunnel}.yaml'
@@ -115,14 +140,12 @@ def reference_path(tunnel: str) -> Path:
 
 def run_one(job) -> dict:
     kind, effects, n_sweeps, seed, tunnel = job
-    from wind_shaper.app import Setup
-    from wind_shaper.sim import make_effect
     from wind_shaper.workbench.commands import simulated_sweeps
     from wind_shaper.workbench.diagnose import Diagnosis
     from wind_shaper.workbench.library import candidate_for_hidden_effect, default_library
-    setup = Setup.load()
+    setup = setup_for(tunnel)
     reference = setup.load_model(reference_path(tunnel))
-    built = [make_effect(e) for e in effects]
+    built = [build_effect(e, tunnel) for e in effects]
     t0 = time.process_time()
     data = simulated_sweeps(make_tunnel(setup, tunnel, seed, built), n_sweeps, seed=seed)
     d = Diagnosis(**DIAGNOSIS).fit(reference, data, setup.geometry)
@@ -186,9 +209,10 @@ def main(argv=None) -> int:
     p.add_argument('--kinds', default='clean,in_library,outside,mix',
                    help='rows to run (comma-separated: clean, in_library, outside, mix, and the '
                         'held-out physics fresh, fresh_mix, second, second_mix)')
-    p.add_argument('--tunnel', choices=('default', 'other'), default='default',
-                   help='the simulated tunnel: the default one, or one with heavy-tailed jets and '
-                        'another build (its reference commissioned on first use)')
+    p.add_argument('--tunnel', choices=('default', 'other', 'grid'), default='default',
+                   help='the simulated tunnel: the default one, one with heavy-tailed jets and '
+                        'another build, or a 3 x 3 fan wall (their references commissioned on '
+                        'first use)')
     p.add_argument('--counts', default=None, help='sweep counts, e.g. 12 or 6,12,24 (default: all)')
     p.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                    help='a Diagnosis setting to try instead of its default (a number), e.g. '
@@ -205,6 +229,7 @@ def main(argv=None) -> int:
         p.error(f'unknown --kinds {sorted(unknown)}')
     reference_path(args.tunnel)  # commission once, before the workers start
     jobs = [(k, e, n, s, args.tunnel) for k, e, n in cases(args.quick, counts) if k in kinds
+            and not (args.tunnel == 'grid' and set(e) & NOT_ON_GRID)
             for s in range(args.first_seed, args.first_seed + args.seeds)]
     t0 = time.time()
     with ProcessPoolExecutor(args.jobs) as pool:
