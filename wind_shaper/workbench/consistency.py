@@ -32,7 +32,8 @@ from .fitting import fit_model
 from .wording import values_text
 
 __all__ = ['SweepCheck', 'BesideCheck', 'check_across_sweeps', 'check_beside_discrepancy',
-           'check_across_space', 'check_across_load', 'judge_spread', 'gain_beside_discrepancy']
+           'check_across_space', 'check_across_load', 'check_within_range', 'judge_spread',
+           'gain_beside_discrepancy']
 
 
 @dataclass
@@ -331,6 +332,33 @@ def check_across_load(model: Term, label: str, null: dict, train: FitData, previ
             f'runs below {median:.2g} x the mean U^2 and {b:.3g} where it runs above '
             f'({z:.1f} standard errors apart): the physics follows the fans\' commands '
             f'in another way than this term')
+
+
+def check_within_range(node: Term, null: dict, *, edge: float = 0.005) -> str:
+    """Does the fitted term ``node`` keep its parameters inside their physical range? '' if
+    so, else why not, in words.
+
+    Each family's bounds are the range its physics allows (a jet-interaction exponent from
+    0.25 to 2, a width factor from 0.5 to 2). A fit that runs to the edge of that range is
+    asking for more than the family's form can give: the best member of the family is the
+    extreme one, and the physics is of another form (a jet that spreads with its thrust,
+    fitted as an interaction between jets with the largest exponent allowed). A parameter is
+    at the edge when it lies within ``edge`` of its range's span from a bound that is not its
+    no-effect value (an elongation ratio of 1 is no elongation, not an edge)."""
+    for h in node._free():
+        values = np.atleast_1d(np.asarray(getattr(node, h.name), float))
+        bounds = h.element_bounds()
+        nulls = np.broadcast_to(np.asarray(null.get(h.name, np.nan), float), values.shape)
+        for value, (lo, hi), none in zip(values, bounds, nulls):
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                continue
+            tol = edge * (hi - lo)
+            for bound in (lo, hi):
+                if abs(value - bound) <= tol and not (np.isfinite(none) and abs(none - bound) <= tol):
+                    return (f'its {h.name} ran to the edge of the range its physics allows '
+                            f'({value:.3g}; the range is {lo:g} to {hi:g}): the data ask for more '
+                            f'than this form can give, so the physics is of another form')
+    return ''
 
 
 @dataclass

@@ -56,7 +56,7 @@ import numpy as np
 from ..model import Term, param_slices, term_label
 from ..core.geometry import TunnelGeometry
 from .consistency import (SweepCheck, check_across_load, check_across_space, check_across_sweeps,
-                          check_beside_discrepancy)
+                          check_beside_discrepancy, check_within_range)
 from .data import FitData, SweepSet
 from .discrepancy import SCALE_FEATURES, describe_outside, outside_text
 from .enough import undecided
@@ -160,7 +160,8 @@ class Diagnosis:
     jet's shape through its footprint (``_one_sided``); check_beside: give an effect whose
     values spread across sweeps a second check with a discrepancy model beside it
     (``_beside_discrepancy``); check_load: every finding must hold whether the nearest fan runs
-    high or low against the others (``_off_load``).
+    high or low against the others (``_off_load``); check_range: no finding's fitted parameter
+    may run to the edge of its physical range (``_at_edge``).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
@@ -170,7 +171,8 @@ class Diagnosis:
                  noise_sd: float | None = None, min_spread: float = 0.10,
                  check_sweeps: bool = True, describe_outside: bool = True,
                  check_min_sweeps: int = 4, check_tolerance: float = 0.1,
-                 check_space: bool = True, check_beside: bool = True, check_load: bool = True):
+                 check_space: bool = True, check_beside: bool = True, check_load: bool = True,
+                 check_range: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -184,6 +186,7 @@ class Diagnosis:
         self.check_space = check_space
         self.check_beside = check_beside
         self.check_load = check_load
+        self.check_range = check_range
 
     # -- the steps ----------------------------------------------------------------------------
     def _evaluate(self, model: Term) -> tuple[float, float]:
@@ -425,8 +428,8 @@ class Diagnosis:
             if failed:
                 worst = min(failed, key=lambda t: t.check.p_value)
             else:
-                refused = (self._one_sided(final, kept, withouts) or self._off_load(final, kept, withouts)
-                           or self._leans_on_curves(kept))
+                refused = (self._at_edge(final, kept) or self._one_sided(final, kept, withouts)
+                           or self._off_load(final, kept, withouts) or self._leans_on_curves(kept))
                 if refused is None:
                     break
                 worst, reason = refused
@@ -468,6 +471,17 @@ class Diagnosis:
             c.passed, c.spread, c.reasons = True, False, []
         else:
             c.reasons += c.beside.reasons
+
+    def _at_edge(self, final: FitResult, kept: list):
+        """(finding, why) for the first finding whose fitted parameters ran to the edge of
+        their physical range (``consistency.check_within_range``), or None."""
+        if not self.check_range:
+            return None
+        for t in kept:
+            why = check_within_range(_node(final.model, t.candidate.label), t.candidate.null)
+            if why:
+                return t, why
+        return None
 
     def _one_sided(self, final: FitResult, kept: list, withouts: list):
         """(finding, why) for the first change of one jet (its gain, landing point, width or
