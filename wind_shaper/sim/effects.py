@@ -100,6 +100,20 @@ def _fan_rows(groups, fan):
     return [(g, g.index_of(fan)) for g in groups if len(g.index_of(fan))]
 
 
+def neighbour_pairs(hubs: np.ndarray, reach: float) -> np.ndarray:
+    """(n_pairs, 2) indices into ``hubs`` (n, 2) [m] of the hubs at most ``reach`` times the
+    closest spacing apart: neighbouring fans."""
+    hubs = np.asarray(hubs, dtype=float)
+    if len(hubs) < 2:
+        return np.zeros((0, 2), dtype=int)
+    tree = cKDTree(hubs)
+    dist, _ = tree.query(hubs, k=2)
+    spacing = float(np.min(dist[:, 1]))
+    if spacing <= 0:
+        return np.zeros((0, 2), dtype=int)
+    return tree.query_pairs(reach * spacing * (1 + 1e-9), output_type='ndarray')
+
+
 @dataclass(frozen=True)
 class WeakFan(HiddenEffect):
     """One fan delivers only ``gain`` (0..1) of its nominal thrust: a worn or chipped
@@ -201,15 +215,7 @@ class JetInteraction(HiddenEffect):
 
     def pairs(self, geometry: TunnelGeometry) -> np.ndarray:
         """(n_pairs, 2) fan indices of neighbouring hubs."""
-        hubs = geometry.fans.positions
-        if len(hubs) < 2:
-            return np.zeros((0, 2), dtype=int)
-        tree = cKDTree(hubs)
-        dist, _ = tree.query(hubs, k=2)
-        spacing = float(np.min(dist[:, 1]))
-        if spacing <= 0:
-            return np.zeros((0, 2), dtype=int)
-        return tree.query_pairs(self.reach * spacing * (1 + 1e-9), output_type='ndarray')
+        return neighbour_pairs(geometry.fans.positions, self.reach)
 
     def sources(self, groups, thrust, geometry):
         pairs = self.pairs(geometry)

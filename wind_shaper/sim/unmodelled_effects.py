@@ -17,7 +17,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..core.errors import ConfigError
-from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl
+from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl, neighbour_pairs
 from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
@@ -450,14 +450,12 @@ class NeighbourStarvation(HiddenEffect):
     bounds: ClassVar = {'coupling': (0.0, 3.0), 'thrust_ref': (0.1, 100.0), 'reach': (1.0, 3.0)}
 
     def thrust(self, t, geometry):
-        enabled = np.asarray(geometry.fans.enabled, bool)
-        hubs = np.asarray(geometry.fans.positions, float)
-        d = np.hypot(*(hubs[:, None, :] - hubs[None, :, :]).transpose(2, 0, 1))
-        d[~enabled, :] = d[:, ~enabled] = np.inf
-        np.fill_diagonal(d, np.inf)
-        if not np.isfinite(d).any() or self.coupling == 0:
+        on = np.flatnonzero(geometry.fans.enabled)
+        pairs = on[neighbour_pairs(np.asarray(geometry.fans.positions)[on], self.reach)]
+        if len(pairs) == 0 or self.coupling == 0:
             return t
-        near = d <= self.reach * np.min(d)
+        near = np.zeros((len(t), len(t)), bool)
+        near[pairs[:, 0], pairs[:, 1]] = near[pairs[:, 1], pairs[:, 0]] = True
         count = near.sum(axis=1)
         mean = np.where(count > 0, (near * np.maximum(t, 0.0)[None, :]).sum(axis=1) / np.maximum(count, 1), 0.0)
         return t / (1.0 + self.coupling * mean / self.thrust_ref)
