@@ -19,6 +19,7 @@ from ..core.errors import ConfigError
 from ..core.geometry import FanArray
 from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part_batched, fan_thrust_batched,
                       fan_width, is_fan_sum)
+from .memo import remember
 from .terms import Hyper, register_term
 
 __all__ = ['FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
@@ -203,7 +204,9 @@ class FanShift(FanWrapper):
         return self.shift[2 * e:2 * e + 2]
 
     def _transform(self, e, j, U, Z, jacobian):
-        return fan_part_batched(self.inner, U, Z - self.shift_of(e), j, jacobian)
+        shift = self.shift_of(e)
+        moved = remember(Z, ('fan_shift', shift.tobytes()), lambda: Z - shift)
+        return fan_part_batched(self.inner, U, moved, j, jacobian)
 
 
     def fan_landing(self, j):
@@ -239,8 +242,9 @@ class FanWidth(FanWrapper):
         self._check_bounds()
 
     def _transform(self, e, j, U, Z, jacobian):
-        c = fan_landing(self.inner, j)
-        return fan_part_batched(self.inner, U, c + (Z - c) / self.scale[e], j, jacobian)
+        c, scale = fan_landing(self.inner, j), self.scale[e]
+        moved = remember(Z, ('fan_width', c.tobytes(), float(scale)), lambda: c + (Z - c) / scale)
+        return fan_part_batched(self.inner, U, moved, j, jacobian)
 
 
     def fan_width(self, j):
@@ -301,7 +305,8 @@ class FanElongation(FanWrapper):
     def _transform(self, e, j, U, Z, jacobian):
         M = self.warp(e, j)
         c = fan_landing(self.inner, j)
-        v, jv = fan_part_batched(self.inner, U, c + (Z - c) @ M.T, j, jacobian)
+        moved = remember(Z, ('fan_elongation', c.tobytes(), M.tobytes()), lambda: c + (Z - c) @ M.T)
+        v, jv = fan_part_batched(self.inner, U, moved, j, jacobian)
         k = float(np.linalg.det(M))
         return k * v, (None if jv is None else k * jv)
 
@@ -381,10 +386,15 @@ class FanShape(FanWrapper):
     def _transform(self, e, j, U, Z, jacobian):
         c = fan_landing(self.inner, j)
         sigma = fan_width(self.inner, j) or 0.15
-        d = Z - c
-        r = np.sqrt(np.einsum('mk,mk->m', d, d)) / sigma
-        f = np.power(np.maximum(r, 1e-12), 0.5 * self.flatness[e] - 1.0)
-        return fan_part_batched(self.inner, U, c + d * f[:, None], j, jacobian)
+        flatness = self.flatness[e]
+
+        def move():
+            d = Z - c
+            r = np.sqrt(np.einsum('mk,mk->m', d, d)) / sigma
+            f = np.power(np.maximum(r, 1e-12), 0.5 * flatness - 1.0)
+            return c + d * f[:, None]
+        moved = remember(Z, ('fan_shape', c.tobytes(), float(sigma), float(flatness)), move)
+        return fan_part_batched(self.inner, U, moved, j, jacobian)
 
 
     def __repr__(self):

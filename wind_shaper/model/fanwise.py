@@ -37,6 +37,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.geometry import FanArray
+from .memo import remember
 from .prior import CentralRing, FanJets, _poly
 from .terms import TERMS, Product, Sum, Term, _batch, term_from_dict
 
@@ -87,8 +88,12 @@ def _zero_part(M, jacobian):
 def _jets_part(t: FanJets, U, Z, j, jacobian):
     if not t._members[j]:
         return _zero_part(len(Z), jacobian)
-    d = Z - t.fans.positions[j]
-    G = np.exp(-np.einsum('mk,mk->m', d, d) / t.sigma ** 2)
+    hub, sigma = t.fans.positions[j], t.sigma
+
+    def footprint():
+        d = Z - hub
+        return np.exp(-np.einsum('mk,mk->m', d, d) / sigma ** 2)
+    G = remember(Z, ('fan_jets', hub.tobytes(), float(sigma)), footprint)
     P, dP = _poly(t._coeffs[j], U[:, j])
     return G * P, (G * dP if jacobian else None)
 
@@ -96,9 +101,14 @@ def _jets_part(t: FanJets, U, Z, j, jacobian):
 def _ring_part(t: CentralRing, U, Z, j, jacobian):
     if not t._members[j]:
         return _zero_part(len(Z), jacobian)
-    d = Z - t.fans.positions[j]
-    d2 = np.einsum('mk,mk->m', d, d)
-    G = (t.offset + d2 / t.ring_scale ** 2) * np.exp(-d2 / t.sigma ** 2)
+    hub, offset, ring_scale, sigma = t.fans.positions[j], t.offset, t.ring_scale, t.sigma
+
+    def footprint():
+        d = Z - hub
+        d2 = np.einsum('mk,mk->m', d, d)
+        return (offset + d2 / ring_scale ** 2) * np.exp(-d2 / sigma ** 2)
+    G = remember(Z, ('central_ring', hub.tobytes(), float(offset), float(ring_scale), float(sigma)),
+                 footprint)
     P, dP = _poly(t.thrust, U[:, j])
     return G * P, (G * dP if jacobian else None)
 

@@ -27,6 +27,7 @@ from ..core.errors import ConfigError
 from ..core.geometry import FanArray
 from .fanwise import (PLATE_SIDE, Wrapper, _full, fan_landing, fan_part_batched, fan_thrust_batched,
                       fan_width)
+from .memo import remember
 from .terms import Hyper, Term, register_term
 
 __all__ = ['Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
@@ -215,7 +216,9 @@ class JetInteraction(Wrapper):
         T = np.maximum(T, 0.0)
         i, k = self.pairs[:, 0], self.pairs[:, 1]
         g, dg = self._pair_thrust(T[:, i] * T[:, k] + _EPS_T2)
-        B = _plate_gauss(Z, self._mid, self._pair_width, self.plate_side)
+        mid, width, side = self._mid, self._pair_width, self.plate_side
+        B = remember(Z, ('plate_gauss', mid.tobytes(), width.tobytes(), side),
+                     lambda: _plate_gauss(Z, mid, width, side))
         value = self.strength * np.sum(g * B, axis=1)
         if not jacobian:
             return value, None
@@ -372,8 +375,6 @@ class Background(Term):
         return f'Background({self.force:.3g} N)'
 
 
-_WALL_CACHE: dict = {}
-
 
 @register_term
 class WallLayer(Wrapper):
@@ -428,23 +429,17 @@ class WallLayer(Wrapper):
 
     def _geometry(self, Z):
         """Points a step out and in along the radius (M, 2) x 2, and the plate nodes' radial
-        offsets dr (M, Q) and radii (M, Q). Kept for the last few Z arrays, so a fit that calls
-        the term on the same points again evaluates the wrapped term on the same arrays."""
-        key = (Z.__array_interface__['data'][0], Z.shape, Z.strides, self.shape, self.plate_side,
-               self.plate_order)
-        hit = _WALL_CACHE.get(key)
-        if hit is not None:
-            return hit[1]
-        r = np.hypot(Z[:, 0], Z[:, 1])
-        u = Z / np.maximum(r, 1e-9)[:, None]
-        u[r < 1e-9] = (1.0, 0.0)
-        P = Z[:, None, :] + self._nodes[None]
-        rp = self._radius(P)
-        out = (Z + self._STEP * u, Z - self._STEP * u, rp - self._radius(Z)[:, None], rp)
-        if len(_WALL_CACHE) >= 8:
-            _WALL_CACHE.clear()
-        _WALL_CACHE[key] = (Z, out)
-        return out
+        offsets dr (M, Q) and radii (M, Q). Remembered for read-only Z (``model.memo``), so a
+        fit that calls the term on the same points evaluates the wrapped term on the same
+        arrays, whose own geometry is remembered in turn."""
+        def compute():
+            r = np.hypot(Z[:, 0], Z[:, 1])
+            u = Z / np.maximum(r, 1e-9)[:, None]
+            u[r < 1e-9] = (1.0, 0.0)
+            P = Z[:, None, :] + self._nodes[None]
+            rp = self._radius(P)
+            return Z + self._STEP * u, Z - self._STEP * u, rp - self._radius(Z)[:, None], rp
+        return remember(Z, ('wall_layer', self.shape, self.plate_side, self.plate_order), compute)
 
     def ratio(self, U, Z, jacobian=False, field=None):
         """The averaged slow-down (M,) and, with ``jacobian``, its derivative (M, n_fans)."""

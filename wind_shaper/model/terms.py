@@ -42,7 +42,9 @@ class Hyper:
 
 def _batch(U, Z, n_fans):
     """Broadcast commands to one row per point. Returns U (M, n_fans), Z (M, 2)."""
-    Z = np.asarray(Z, dtype=float).reshape(-1, 2)
+    Z = np.asarray(Z, dtype=float)
+    if Z.ndim != 2 or Z.shape[1] != 2:  # keep (M, 2) arrays as they are: model.memo knows them
+        Z = Z.reshape(-1, 2)
     U = np.asarray(U, dtype=float)
     if U.ndim == 1:
         if U.shape[0] != n_fans:

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..core.tunnel import Measurements, Sweep
 from ..experiment.design import design_commands
+from ..model.memo import freeze
 from .errors import DataSourceError
 
 __all__ = ['SweepSet', 'FitData', 'design_commands', 'from_sim', 'from_bag', 'from_run_folder',
@@ -47,6 +48,12 @@ class FitData:
     y: np.ndarray
     sweep: np.ndarray
     count: np.ndarray
+
+    def __post_init__(self):
+        # read-only arrays: the model's geometry cache (model.memo) may then keep what it
+        # computes from them through a fit's many evaluations
+        for name in ('U', 'Z', 'y', 'sweep', 'count'):
+            object.__setattr__(self, name, freeze(getattr(self, name)))
 
     def __len__(self) -> int:
         return len(self.y)
