@@ -22,13 +22,16 @@ from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part_batched, fan_th
 from .memo import remember
 from .terms import Hyper, register_term
 
-__all__ = ['FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
+#: The ``group`` that selects every enabled fan (one value shared by all).
+ALL_FANS = 'all'
+
+__all__ = ['ALL_FANS', 'FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
 
 
 class FanWrapper(Wrapper):
     """A wrapper that changes chosen fans' jets. Which fans: ``fan`` (a name or list of names;
-    one parameter value per fan), ``group`` (a mount group; one value shared by its fans), or
-    neither (every fan, one value each). Subclasses declare ``hypers`` with size = values per
+    one parameter value per fan), ``group`` (a mount group, or ``'all'`` for every enabled fan;
+    one value shared by its fans), or neither (every fan, one value each). Subclasses declare ``hypers`` with size = values per
     fan (resized here) and implement ``_transform``."""
 
     def _init_selection(self, fans: FanArray, fan, group, fixed):
@@ -43,7 +46,7 @@ class FanWrapper(Wrapper):
             groups = (group,) if isinstance(group, str) else tuple(group)
             idx, elem = [], []
             for e, g in enumerate(groups):
-                members = np.flatnonzero(fans.group_mask(g))
+                members = np.flatnonzero(fans.enabled if g == ALL_FANS else fans.group_mask(g))
                 if len(members) == 0:
                     raise ConfigError(f'{type(self).__name__}: no fan of group {g!r}; groups are '
                                       f'{sorted(set(fans.groups))}')
