@@ -72,9 +72,9 @@ def view(ros_context):
         yield node, pubs, got, port
     finally:
         executor.shutdown(timeout_sec=2.0)
+        thread.join(timeout=5.0)  # the spin thread ends before its nodes go
         node.destroy_node()
         peer.destroy_node()
-        thread.join(2.0)
 
 
 def field_msg(kp, mean, std, k=0):

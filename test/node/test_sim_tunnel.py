@@ -82,9 +82,10 @@ class Harness:
 
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
+        # the spin thread may be inside spin_once: let it end before its nodes go
+        self.thread.join(timeout=5.0)
         self.node.destroy_node()
         self.client.destroy_node()
-        self.thread.join(2.0)
 
 
 @pytest.fixture
