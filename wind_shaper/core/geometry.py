@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .errors import ConfigError
 
@@ -244,3 +245,17 @@ class TunnelGeometry:
 
     def with_disabled(self, names: Iterable[str]) -> 'TunnelGeometry':
         return replace(self, fans=self.fans.with_disabled(names))
+
+
+def neighbour_pairs(hubs: np.ndarray, reach: float) -> np.ndarray:
+    """(n_pairs, 2) indices into ``hubs`` (n, 2) [m] of the hubs at most ``reach`` times the
+    closest spacing apart: neighbouring fans."""
+    hubs = np.asarray(hubs, dtype=float)
+    if len(hubs) < 2:
+        return np.zeros((0, 2), dtype=int)
+    tree = cKDTree(hubs)
+    dist, _ = tree.query(hubs, k=2)
+    spacing = float(np.min(dist[:, 1]))
+    if spacing <= 0:
+        return np.zeros((0, 2), dtype=int)
+    return tree.query_pairs(reach * spacing * (1 + 1e-9), output_type='ndarray')

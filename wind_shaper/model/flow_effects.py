@@ -20,11 +20,10 @@ space by central differences (step 1e-5 m).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.special import erf
 
 from ..core.errors import ConfigError
-from ..core.geometry import FanArray
+from ..core.geometry import FanArray, neighbour_pairs
 from .fanwise import (PLATE_SIDE, Wrapper, _full, fan_landing, fan_part_batched, fan_thrust_batched,
                       fan_width)
 from .memo import remember
@@ -195,16 +194,8 @@ class JetInteraction(Wrapper):
         return {'reach': self.reach, 'plate_side': self.plate_side}
 
     def _pairs(self) -> np.ndarray:
-        hubs = self.fans.positions[self.fans.enabled]
         index = np.flatnonzero(self.fans.enabled)
-        if len(hubs) < 2:
-            return np.zeros((0, 2), dtype=int)
-        tree = cKDTree(hubs)
-        dist, _ = tree.query(hubs, k=2)
-        spacing = float(np.min(dist[:, 1]))
-        if spacing <= 0:
-            return np.zeros((0, 2), dtype=int)
-        pairs = tree.query_pairs(self.reach * spacing * (1 + 1e-9), output_type='ndarray')
+        pairs = neighbour_pairs(self.fans.positions[index], self.reach)
         return index[pairs] if len(pairs) else np.zeros((0, 2), dtype=int)
 
     def interaction(self, U, Z, jacobian):

@@ -21,10 +21,9 @@ from dataclasses import asdict, dataclass, fields
 from typing import ClassVar, Mapping
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..core.errors import ConfigError
-from ..core.geometry import TunnelGeometry
+from ..core.geometry import TunnelGeometry, neighbour_pairs
 from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
@@ -98,20 +97,6 @@ class HiddenEffect:
 
 def _fan_rows(groups, fan):
     return [(g, g.index_of(fan)) for g in groups if len(g.index_of(fan))]
-
-
-def neighbour_pairs(hubs: np.ndarray, reach: float) -> np.ndarray:
-    """(n_pairs, 2) indices into ``hubs`` (n, 2) [m] of the hubs at most ``reach`` times the
-    closest spacing apart: neighbouring fans."""
-    hubs = np.asarray(hubs, dtype=float)
-    if len(hubs) < 2:
-        return np.zeros((0, 2), dtype=int)
-    tree = cKDTree(hubs)
-    dist, _ = tree.query(hubs, k=2)
-    spacing = float(np.min(dist[:, 1]))
-    if spacing <= 0:
-        return np.zeros((0, 2), dtype=int)
-    return tree.query_pairs(reach * spacing * (1 + 1e-9), output_type='ndarray')
 
 
 @dataclass(frozen=True)

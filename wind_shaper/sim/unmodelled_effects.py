@@ -17,7 +17,8 @@ from typing import ClassVar
 import numpy as np
 
 from ..core.errors import ConfigError
-from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl, neighbour_pairs
+from ..core.geometry import neighbour_pairs
+from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl
 from .errors import EffectError
 from .physics import FlatTop, JetGroup
 

@@ -65,7 +65,7 @@ from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
-from .wording import _bic_text, _change_text, drop_text, values_text
+from .wording import _bic_text, _change_text, drop_text, pct_text, values_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
 
@@ -88,10 +88,6 @@ def every_fan_form(candidate: Candidate, cls: type) -> Candidate:
     return replace(candidate, name=f'{family}[{ALL_FANS}]', label=f'{family}[{ALL_FANS}]',
                    title=f'{candidate.title} (every fan alike)', fans=(),
                    make=lambda m, **p: cls(m.fans, m, group=ALL_FANS, **p))
-
-
-def _pct(gain: float) -> str:
-    return f'{100 * gain:.0f} %'
 
 
 def fit_mask(model: Term) -> np.ndarray:
@@ -523,7 +519,8 @@ class Diagnosis:
             node = _node(final.model, t.candidate.label)
             if not isinstance(node, FanWrapper) or node.group == ALL_FANS:
                 continue
-            alone = 1.0 - self._evaluate(final.model)[0] / self._evaluate(without.model)[0]
+            error_without = self._evaluate(without.model)[0]
+            alone = 1.0 - self._evaluate(final.model)[0] / error_without
             if alone <= 0:
                 continue
             every = every_fan_form(t.candidate, type(node))
@@ -535,11 +532,11 @@ class Diagnosis:
             before = self._evaluate(shared.model)[0]
             beside = 1.0 - self._evaluate(both.model)[0] / before if before > 0 else 0.0
             if beside < self.min_specific * alone:
-                every_alone = 1.0 - before / self._evaluate(without.model)[0]
+                every_alone = 1.0 - before / error_without
                 return t, (f'it is not specific to its fans: the same change of every fan\'s jet '
-                           f'takes the held-out error down by {_pct(every_alone)} (this finding alone: '
-                           f'{_pct(alone)}), and beside it this finding takes it down by only '
-                           f'{_pct(beside)} (a change of the whole flow, such as a draft or jets that '
+                           f'takes the held-out error down by {pct_text(every_alone)} (this finding alone: '
+                           f'{pct_text(alone)}), and beside it this finding takes it down by only '
+                           f'{pct_text(beside)} (a change of the whole flow, such as a draft or jets that '
                            f'spread with their thrust, shows partly as one jet\'s)')
         return None
 
