@@ -67,8 +67,15 @@ class Harness:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        # spin in small steps until told to stop: shutting the executor down while spin() is
+        # inside it races with rclpy's wait set (seen as thread exceptions at teardown)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
+
+    def _spin(self):
+        while not self.stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def sweep(self, duration_s, timeout_s, **region):
         client = self.client.create_client(Sweep, names.SWEEP)
@@ -81,9 +88,9 @@ class Harness:
             self.client.destroy_client(client)
 
     def close(self):
-        self.executor.shutdown(timeout_sec=2.0)
-        # the spin thread may be inside spin_once: let it end before its nodes go
+        self.stop.set()
         self.thread.join(timeout=5.0)
+        self.executor.shutdown(timeout_sec=2.0)
         self.node.destroy_node()
         self.client.destroy_node()
 
