@@ -2,32 +2,14 @@
 convergence_static.json (not over the plate results), and a scale run merges into scale.json (a
 --gp-accuracy run keeps the --series data that --replot draws). The benchmarks themselves are
 replaced by stubs here."""
-import importlib.util
 import json
-import os
 import sys
 from pathlib import Path
 
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / 'bench'
-
-
-def _load(name):
-    """Import bench/<name>.py; the BLAS thread settings it makes on import are undone."""
-    keep = {k: os.environ.get(k) for k in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS')}
-    spec = importlib.util.spec_from_file_location(f'bench_{name}', BENCH / f'{name}.py')
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module   # dataclasses look their module up there
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        for k, v in keep.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-    return module
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench_module import load_bench as _load  # noqa: E402
 
 
 @pytest.mark.parametrize('source,quick,written', [

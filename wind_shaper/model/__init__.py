@@ -12,8 +12,8 @@ from .prior import POLY_BOUNDS, SIGMA_BOUNDS, CentralRing, FanJets, paper_prior
 from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batched, fan_thrust,
                       fan_thrust_batched, fan_width, find_term, has_fan_parts, is_fan_sum,
                       param_slices, refix, set_fixed, term_label, walk, wrap)
-from .fan_effects import (ALL_FANS, FanCurve, FanElongation, FanGain, FanShape, FanShift,
-                          FanWidth, FanWrapper)
+from .fan_effects import (ALL_FANS, FanCurve, FanElongation, FanGain, FanPush, FanShape,
+                          FanShift, FanWidth, FanWrapper)
 from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
                            SwirlQuadratic, WallLayer)
 from .discrepancy import MODE_NAMES, CommandScale, Discrepancy, FieldFormula, command_features, feature_words
@@ -32,7 +32,7 @@ __all__ = [
     'has_fan_parts', 'fan_part_batched', 'fan_thrust_batched', 'walk', 'param_slices', 'find_term',
     'term_label', 'refix', 'set_fixed', 'PLATE_SIDE',
     # fan_effects: per-fan candidate effects
-    'FanWrapper', 'ALL_FANS', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
+    'FanWrapper', 'ALL_FANS', 'FanGain', 'FanShift', 'FanPush', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
     'WallLayer',

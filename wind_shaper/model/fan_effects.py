@@ -1,5 +1,5 @@
 """Per-fan candidate effects: wrappers that change chosen fans' jets (``FanGain``, ``FanShift``,
-``FanWidth``, ``FanElongation``, ``FanCurve``, ``FanShape``).
+``FanPush``, ``FanWidth``, ``FanElongation``, ``FanCurve``, ``FanShape``).
 
 Each term here states one hypothesis about the tunnel, has bounded parameters whose null value
 means "no such effect", prints its formula in ``repr`` and is registered with
@@ -25,7 +25,7 @@ from .terms import Hyper, register_term
 #: The ``group`` that selects every enabled fan (one value shared by all).
 ALL_FANS = 'all'
 
-__all__ = ['ALL_FANS', 'FanWrapper', 'FanGain', 'FanShift', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
+__all__ = ['ALL_FANS', 'FanWrapper', 'FanGain', 'FanShift', 'FanPush', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape']
 
 
 class FanWrapper(Wrapper):
@@ -223,6 +223,50 @@ class FanShift(FanWrapper):
         vals = self.shift.reshape(-1, 2)
         text = self._fans_text(vals, lambda s: f'({100 * s[0]:+.1f}, {100 * s[1]:+.1f}) cm')
         return f'FanShift({text}) o ({self.inner!r})'
+
+
+@register_term
+class FanPush(FanWrapper):
+    """Hypothesis: a fan's jet lands ``push`` [m] farther from the tunnel's axis than the prior
+    puts it, along the line from the axis through its hub (push < 0: towards the axis; bounds
+    +-0.15 m). Jets that cling to the wall or are drawn to the middle move this way, each in its
+    own direction, which a shared ``FanShift`` cannot express.
+
+        Phi_j'(U, z) = Phi_j(U, z - push_j * h_j / |h_j|)      (h_j: fan j's hub [m])
+
+    A fan on the axis does not move. With ``group='all'`` every jet moves by one shared push.
+    Detect: every off-axis fan's footprint peak moved outwards (or inwards) from its hub."""
+
+    kind = 'fan_push'
+    hypers = (Hyper('push', 1, (-0.15, 0.15)),)
+
+    def __init__(self, fans: FanArray, term, fan=None, group=None, push=0.0, fixed=()):
+        self._init_inner(fans, term)
+        self._init_selection(fans, fan, group, fixed)
+        self.push = self._param('push', push)
+        hubs = np.asarray(fans.positions, float)
+        radius = np.hypot(hubs[:, 0], hubs[:, 1])
+        self._outward = np.where(radius[:, None] > 1e-6, hubs / np.maximum(radius, 1e-6)[:, None], 0.0)
+        self._check_bounds()
+
+    def shift_of(self, e, j) -> np.ndarray:
+        """The move (2,) [m] of fan j's jet (element e)."""
+        return self.push[e] * self._outward[j]
+
+    def _transform(self, e, j, U, Z, jacobian):
+        shift = self.shift_of(e, j)
+        moved = remember(Z, ('fan_shift', shift.tobytes()), lambda: Z - shift)
+        return fan_part_batched(self.inner, U, moved, j, jacobian)
+
+    def fan_landing(self, j):
+        def compute():
+            base = fan_landing(self.inner, j)
+            e = self._where.get(int(j))
+            return base if e is None else base + self.shift_of(e, int(j))
+        return self._memoised(('c', j), compute)
+
+    def __repr__(self):
+        return f'FanPush({self._fans_text(self.push, lambda p: f"{100 * p:+.1f} cm outwards")}) o ({self.inner!r})'
 
 
 @register_term

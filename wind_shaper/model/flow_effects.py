@@ -161,18 +161,26 @@ class JetInteraction(Wrapper):
     two jets land, w_ij = width * the mean of the two jets' own widths (sqrt(sigma^2 - 2 b),
     b = plate_side^2 / 12 the plate's blur). Neighbours: hubs closer than ``reach`` x the
     nearest hub spacing. strength [-] bounds 0..2 (0 = none); width [-] bounds 0.3..3.
-    Detect: excess force between fans, growing with both neighbours' thrust."""
+    Detect: excess force between fans, growing with both neighbours' thrust.
+
+    ``follows='mean'`` (structural) puts the tunnel's mean thrust T_mean (over the enabled fans)
+    in place of each pair's: T_i T_j -> T_mean^2, the same bridges filled by the whole
+    tunnel's flow (recirculation, the plenum's pressure) rather than by the two jets. The
+    diagnosis checks a jet-interaction finding against that form (``Diagnosis._not_specific``)."""
 
     kind = 'jet_interaction'
     hypers = (Hyper('strength', 1, (0.0, 2.0)), Hyper('width', 1, (0.3, 3.0)))
 
     def __init__(self, fans: FanArray, term, strength: float = 0.0, width: float = 1.0,
-                 reach: float = 1.2, plate_side: float = PLATE_SIDE, fixed=()):
+                 reach: float = 1.2, plate_side: float = PLATE_SIDE, follows: str = 'pairs', fixed=()):
         self._init_inner(fans, term)
         self.strength, self.width = float(strength), float(width)
         if not 1.0 <= reach <= 3.0:
             raise ConfigError(f'JetInteraction.reach must be in [1, 3] hub spacings; got {reach}')
-        self.reach, self.plate_side = float(reach), float(plate_side)
+        if follows not in ('pairs', 'mean'):
+            raise ConfigError(f"JetInteraction.follows must be 'pairs' (each pair's thrusts) or "
+                              f"'mean' (the tunnel's mean thrust); got {follows!r}")
+        self.reach, self.plate_side, self.follows = float(reach), float(plate_side), follows
         self._init_hypers(fixed)
         self._check_bounds()
         self.pairs = self._pairs()
@@ -191,7 +199,10 @@ class JetInteraction(Wrapper):
         self._mid = 0.5 * (land[i] + land[k])
 
     def _structure(self):
-        return {'reach': self.reach, 'plate_side': self.plate_side}
+        out = {'reach': self.reach, 'plate_side': self.plate_side}
+        if self.follows != 'pairs':
+            out['follows'] = self.follows
+        return out
 
     def _pairs(self) -> np.ndarray:
         index = np.flatnonzero(self.fans.enabled)
@@ -206,10 +217,12 @@ class JetInteraction(Wrapper):
         T, dT = fan_thrust_batched(self.inner, U, jacobian)
         T = np.maximum(T, 0.0)
         i, k = self.pairs[:, 0], self.pairs[:, 1]
-        g, dg = self._pair_thrust(T[:, i] * T[:, k] + _EPS_T2)
         mid, width, side = self._mid, self._pair_width, self.plate_side
         B = remember(Z, ('plate_gauss', mid.tobytes(), width.tobytes(), side),
                      lambda: _plate_gauss(Z, mid, width, side))
+        if self.follows == 'mean':
+            return self._mean_interaction(T, dT, B, jacobian)
+        g, dg = self._pair_thrust(T[:, i] * T[:, k] + _EPS_T2)
         value = self.strength * np.sum(g * B, axis=1)
         if not jacobian:
             return value, None
@@ -217,6 +230,20 @@ class JetInteraction(Wrapper):
         coef = self.strength * B * dg
         np.add.at(jac.T, i, (coef * T[:, k] * dT[:, i]).T)
         np.add.at(jac.T, k, (coef * T[:, i] * dT[:, k]).T)
+        return value, jac
+
+    def _mean_interaction(self, T, dT, B, jacobian):
+        """The added force and Jacobian with T_mean^2 for every pair's T_i T_j."""
+        enabled = np.flatnonzero(self.fans.enabled)
+        mean = T[:, enabled].mean(axis=1)
+        g, dg = self._pair_thrust(mean * mean + _EPS_T2)
+        bridges = B.sum(axis=1)
+        value = self.strength * g * bridges
+        if not jacobian:
+            return value, None
+        jac = np.zeros((len(value), self.n_fans))
+        jac[:, enabled] = ((self.strength * bridges * dg * 2.0 * mean / len(enabled))[:, None]
+                           * dT[:, enabled])
         return value, jac
 
     @staticmethod
@@ -234,7 +261,8 @@ class JetInteraction(Wrapper):
         return False
 
     def __repr__(self):
-        return (f'({self.inner!r}) + JetInteraction({self.strength:.3g} sqrt(T_i T_j) over '
+        thrust = 'T_mean' if self.follows == 'mean' else 'sqrt(T_i T_j)'
+        return (f'({self.inner!r}) + JetInteraction({self.strength:.3g} {thrust} over '
                 f'{len(self.pairs)} neighbour pairs, width x{self.width:.3g})')
 
 

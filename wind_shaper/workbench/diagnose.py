@@ -53,7 +53,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..model import ALL_FANS, FanWrapper, Term, param_slices, term_label
+from ..model import (ALL_FANS, FanPush, FanShift, FanWrapper, JetInteraction, Term, param_slices,
+                     term_label)
 from ..core.geometry import TunnelGeometry
 from .consistency import (SweepCheck, check_across_load, check_across_space, check_across_sweeps,
                           check_beside_discrepancy, check_within_range)
@@ -65,7 +66,7 @@ from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
-from .wording import _bic_text, _change_text, drop_text, pct_text, values_text
+from .wording import _bic_text, _change_text, drop_phrase, drop_text, pct_text, values_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
 
@@ -77,17 +78,58 @@ _HELD = re.compile(r'(^|__)thrust(_higher|_lower)?\[0\]$')
 
 #: The candidate families that change one fan's jet (checked on both sides of its footprint).
 ONE_JET_FAMILIES = ('fan_gain', 'fan_shift', 'fan_width', 'fan_elongation', 'fan_shape')
-#: Per-fan families whose findings must be specific to their fans (``Diagnosis._not_specific``).
-SPECIFIC_FAMILIES = ('fan_shift', 'fan_width', 'fan_elongation', 'fan_shape')
+#: Families whose findings must be specific to what they claim (``Diagnosis._not_specific``):
+#: chosen fans' jets, and the pairs of neighbouring jets.
+SPECIFIC_FAMILIES = ('fan_shift', 'fan_width', 'fan_elongation', 'fan_shape', 'jet_interaction')
 
 
-def every_fan_form(candidate: Candidate, cls: type) -> Candidate:
+def every_fan_form(candidate: Candidate, cls: type, title: str = 'every fan alike') -> Candidate:
     """``candidate``'s change applied to every enabled fan with one shared value: a term of
     class ``cls`` (a ``FanWrapper``) with ``group='all'``, placed as the candidate is."""
-    family = candidate.family
-    return replace(candidate, name=f'{family}[{ALL_FANS}]', label=f'{family}[{ALL_FANS}]',
-                   title=f'{candidate.title} (every fan alike)', fans=(),
+    kind = getattr(cls, 'kind', candidate.family)
+    return replace(candidate, name=f'{kind}[{ALL_FANS}]', label=f'{kind}[{ALL_FANS}]', family=kind,
+                   title=f'{candidate.title} ({title})', fans=(),
                    make=lambda m, **p: cls(m.fans, m, group=ALL_FANS, **p))
+
+
+def mean_thrust_form(candidate: Candidate) -> Candidate:
+    """The jet-interaction ``candidate``'s bridges filled by the tunnel's mean thrust instead
+    of each pair's (``JetInteraction(follows='mean')``), placed as the candidate is."""
+    return replace(candidate, name='jet_interaction[mean]', label='jet_interaction', family='jet_interaction',
+                   title=f'{candidate.title} (following the mean thrust)',
+                   make=lambda m, **p: JetInteraction(m.fans, m, follows='mean', **p))
+
+
+def broader_forms(candidate: Candidate, node: Term, fans) -> list:
+    """[(broader form, its start values, words)] a finding is checked beside: the same kind of
+    change without what makes the finding specific, started from the finding's values.
+
+    A change of chosen fans' jets: the same change of every jet with one shared value; a
+    landing offset also every jet moved outwards from the axis by one distance (jets that cling
+    to the wall or are drawn to the middle move each in its own direction, which one shared
+    vector cannot follow), started from the finding's outward part. A jet interaction: the
+    same bridges filled by the tunnel's mean thrust rather than by each pair's thrusts."""
+    if isinstance(node, JetInteraction):
+        if node.follows == 'mean':
+            return []
+        start = {'strength': node.strength, 'width': node.width}
+        return [(mean_thrust_form(candidate), start,
+                 "the same bridges between the jets following the tunnel's mean thrust instead of "
+                 "each pair's thrusts")]
+    if not isinstance(node, FanWrapper) or node.group == ALL_FANS:
+        return []
+    out = [(every_fan_form(candidate, type(node)), candidate.params(node),
+            "the same change of every fan's jet")]
+    if isinstance(node, FanShift) and node.fan is not None:
+        hubs = np.asarray(fans.positions, float)[node._idx]
+        radius = np.hypot(hubs[:, 0], hubs[:, 1])
+        shifts = node.shift.reshape(-1, 2)
+        outward = [float(s @ h / r) for s, h, r in zip(shifts, hubs, radius) if r > 1e-6]
+        if outward:
+            push = float(np.clip(np.mean(outward), -0.15, 0.15))
+            out.append((every_fan_form(candidate, FanPush, 'every jet pushed from the axis alike'),
+                        {'push': push}, 'every jet moved outwards from the axis by one distance'))
+    return out
 
 
 def fit_mask(model: Term) -> np.ndarray:
@@ -500,8 +542,9 @@ class Diagnosis:
         return None
 
     def _not_specific(self, final: FitResult, kept: list, withouts: list):
-        """(finding, why) for the first change of chosen fans' jets (their landing point, width
-        or elongation) that is not specific to those fans, or None.
+        """(finding, why) for the first finding that is not specific to what it claims, or None:
+        a change of chosen fans' jets (their landing point, width, elongation or shape) not
+        specific to those fans, or a jet interaction not specific to its pairs of jets.
 
         Physics the library lacks that moves or widens every jet (a draft across the tunnel,
         jets that spread with their thrust) is partly explained by moving or widening one fan
@@ -509,35 +552,43 @@ class Diagnosis:
         at every load. A real change of one jet is specific: the same change of every fan's jet
         (``group='all'``, one shared value, refitted from the finding's values) explains little
         of it, so beside that form the finding still lowers the held-out error by at least
-        ``min_specific`` of what it lowers it alone. A gain is not checked: the same gain for
-        every fan is the refitted thrust curves."""
+        ``min_specific`` of what it lowers it alone. A landing offset is also checked beside
+        every jet moved outwards from the axis by one distance (``FanPush``): jets that cling to
+        the wall move each in its own direction, which one shared vector cannot follow. A jet
+        interaction is checked beside the same bridges filled by the tunnel's mean thrust: a
+        leak or a recirculation that follows the tunnel's pressure fits as wide, weak bridges,
+        whose gain then owes nothing to each pair's thrusts (``broader_forms``). A gain is not
+        checked: the same gain for every fan is the refitted thrust curves."""
         if not self.check_specific:
             return None
         for t, without in zip(kept, withouts):
             if t.candidate.family not in SPECIFIC_FAMILIES:
                 continue
             node = _node(final.model, t.candidate.label)
-            if not isinstance(node, FanWrapper) or node.group == ALL_FANS:
+            forms = broader_forms(t.candidate, node, self.geometry_.fans)
+            if not forms:
                 continue
             error_without = self._evaluate(without.model)[0]
             alone = 1.0 - self._evaluate(final.model)[0] / error_without
             if alone <= 0:
                 continue
-            every = every_fan_form(t.candidate, type(node))
-            # each candidate is one fan or one group: its values are the shared form's start
-            shared = apply_candidate(without.model, every, **t.params)
-            shared = fit_model(shared, self.train_, free=fit_mask(shared), max_nfev=15)
-            both = apply_candidate(shared.model, t.candidate, **t.params)
-            both = fit_model(both, self.train_, free=fit_mask(both), max_nfev=15)
-            before = self._evaluate(shared.model)[0]
-            beside = 1.0 - self._evaluate(both.model)[0] / before if before > 0 else 0.0
-            if beside < self.min_specific * alone:
-                every_alone = 1.0 - before / error_without
-                return t, (f'it is not specific to its fans: the same change of every fan\'s jet '
-                           f'takes the held-out error down by {pct_text(every_alone)} (this finding alone: '
-                           f'{pct_text(alone)}), and beside it this finding takes it down by only '
-                           f'{pct_text(beside)} (a change of the whole flow, such as a draft or jets that '
-                           f'spread with their thrust, shows partly as one jet\'s)')
+            for every, start, words in forms:
+                shared = apply_candidate(without.model, every, **start)
+                shared = fit_model(shared, self.train_, free=fit_mask(shared), max_nfev=15)
+                both = apply_candidate(shared.model, t.candidate, **t.params)
+                both = fit_model(both, self.train_, free=fit_mask(both), max_nfev=15)
+                before = self._evaluate(shared.model)[0]
+                beside = 1.0 - self._evaluate(both.model)[0] / before if before > 0 else 0.0
+                if beside < self.min_specific * alone:
+                    every_alone = 1.0 - before / error_without
+                    what = 'its pairs of jets' if isinstance(node, JetInteraction) else 'its fans'
+                    return t, (f'it is not specific to {what}: a broader form, {words}, takes the '
+                               f'held-out error down by {pct_text(every_alone)} (this finding alone: '
+                               f'{pct_text(alone)}), and beside it this finding '
+                               f'{drop_phrase(beside).replace("takes it down by", "takes it down by only")}; '
+                               f'a change of the whole flow, such as a draft, jets that spread with their '
+                               f'thrust or cling to the wall, or a leak that follows the tunnel\'s pressure, '
+                               f'shows partly as this finding')
         return None
 
     def _one_sided(self, final: FitResult, kept: list, withouts: list):

@@ -28,6 +28,8 @@ def _instances(fans, base):
         'fan_gain': E.FanGain(fans, base, fan='HM2', gain=0.8),
         'fan_gain_groups': E.FanGain(fans, base, group=['higher', 'central'], gain=[0.9, 1.2]),
         'fan_shift': E.FanShift(fans, base, fan=['LM2', 'CM'], shift=[[0.03, 0.01], [0.0, -0.02]]),
+        'fan_push': E.FanPush(fans, base, fan=['HM1', 'LM2'], push=[0.03, -0.02]),
+        'fan_push_groups': E.FanPush(fans, base, group=E.ALL_FANS, push=0.025),
         'fan_width': E.FanWidth(fans, base, fan='LM1', scale=1.2),
         'fan_elongation': E.FanElongation(fans, base, fan='LM2', ratio=1.6, angle=0.3),
         'fan_curve': E.FanCurve(fans, base, group=['higher', 'lower', 'central'], bend=[0.4, 0.3, 1.0]),
@@ -35,6 +37,7 @@ def _instances(fans, base):
         'swirl': E.Swirl(fans, base, gain=0.5),
         'swirl_quadratic': E.SwirlQuadratic(fans, base, gain=0.3, curvature=0.8),
         'jet_interaction': E.JetInteraction(fans, base, strength=0.3, width=1.1),
+        'jet_interaction_mean': E.JetInteraction(fans, base, strength=0.3, width=1.1, follows='mean'),
         'jet_interaction_power': E.JetInteractionPower(fans, base, strength=0.3, width=1.1, exponent=0.7),
         'dead_band': E.DeadBand(fans, base, threshold=0.12, saturation=0.75),
         'wall_layer': E.WallLayer(fans, base, thickness=0.06),
@@ -83,7 +86,7 @@ def test_null_values_change_nothing(rig, base, rng):
     fans = rig.fans
     U = rng.uniform(0, 0.9, (40, 7))
     Z = rng.uniform(-0.34, 0.34, (40, 2))
-    for term in (E.FanGain(fans, base), E.FanShift(fans, base), E.FanWidth(fans, base),
+    for term in (E.FanGain(fans, base), E.FanShift(fans, base), E.FanPush(fans, base), E.FanWidth(fans, base),
                  E.FanElongation(fans, base), E.FanCurve(fans, base), E.FanShape(fans, base),
                  E.Swirl(fans, base), E.JetInteraction(fans, base), E.DeadBand(fans, base),
                  base + E.Background(fans)):
@@ -108,6 +111,15 @@ def test_each_hypothesis_does_what_it_says(rig, base):
     hub = fans.positions[lm2]
     assert E.fan_part(shifted, only, [hub + (0.04, 0.0)], lm2)[0][0] == pytest.approx(
         E.fan_part(base, only, [hub], lm2)[0][0])
+    # a pushed jet lands farther out along the line from the axis through its hub; CM stays
+    pushed = E.FanPush(fans, base, group=E.ALL_FANS, push=0.05)
+    out = hub * (1 + 0.05 / np.hypot(*hub))
+    assert E.fan_part(pushed, only, [out], lm2)[0][0] == pytest.approx(
+        E.fan_part(base, only, [hub], lm2)[0][0])
+    np.testing.assert_allclose(E.fan_landing(pushed, lm2), E.fan_landing(base, lm2) + out - hub)
+    cm = fans.index('CM')
+    np.testing.assert_allclose(E.fan_part(pushed, U, rig.key_points, cm)[0],
+                               E.fan_part(base, U, rig.key_points, cm)[0])
     # swirl turns a lone CCW fan's footprint by `gain` rad counter-clockwise
     quiet = FanJets(fans, thrust_higher=(0.0, 2.5, 11.0), thrust_lower=(0.0, 2.0, 8.0))  # 0 N at U = 0
     turned = E.Swirl(fans, quiet, gain=0.3)
@@ -129,6 +141,19 @@ def test_each_hypothesis_does_what_it_says(rig, base):
     assert extra > 0.2 and len(inter.pairs) == 12
     lonely = E.JetInteraction(fans, quiet, strength=0.3)  # one fan on: no neighbour to meet
     assert (lonely(alone, [mid]) - quiet(alone, [mid]))[0] == pytest.approx(0.0, abs=0.01)
+    # the mean-thrust form follows the tunnel's mean thrust, not each pair's: swapping two
+    # commands within a mount group keeps it and changes the pairs' form
+    mean_form = E.JetInteraction(fans, base, strength=0.3, follows='mean')
+    hm1, hm3 = fans.index('HM1'), fans.index('HM3')
+    a = np.array([0.2, 0.5, 0.7, 0.3, 0.6, 0.4, 0.5])
+    b = a.copy()
+    b[[hm1, hm3]] = a[[hm3, hm1]]
+    assert fans.groups[hm1] == fans.groups[hm3]
+    pts = rig.key_points
+    np.testing.assert_allclose(mean_form(a, pts) - base(a, pts), mean_form(b, pts) - base(b, pts))
+    assert not np.allclose(inter(a, pts) - base(a, pts), inter(b, pts) - base(b, pts))
+    with pytest.raises(ConfigError, match='follows'):
+        E.JetInteraction(fans, base, follows='total')
 
 
 def test_elongation_keeps_the_jets_force_and_stretches_along_its_angle(rig, base):
