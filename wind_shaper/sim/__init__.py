@@ -18,10 +18,11 @@ from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
 from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, OUTSIDE_SECOND,
-                                 CoandaAttachment, EscCrosstalk, HoneycombBlockage, HubShadow,
+                                 OUTSIDE_THIRD, CeilingDownwash, CoandaAttachment, DragLaw,
+                                 EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
                                  JetDeflection, JetSpreading, NeighbourStarvation, PlenumStarvation,
                                  QuadraticSwirl, SideDraft, StandWake, ThermalGradient, VaneRipple,
-                                 WallLeak, WallReturnFlow)
+                                 WallLeak, WallReflection, WallReturnFlow)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
@@ -31,7 +32,8 @@ __all__ = [
     'HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
-    'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OTHER_FORM',
+    'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection',
+    'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
 ]

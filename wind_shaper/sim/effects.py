@@ -7,7 +7,9 @@ the plant applies every effect at each stage of its pipeline, in this order, wha
 of the list::
 
     command -> thrust -> sources (where and how jets land) -> warp (field coordinates)
-            -> density = (sum of sources + offsets) * scales
+            -> density = (sum of sources + offsets) * scales -> the plate's reading
+
+and a sweep records each force with the positions ``recorded`` gives (the true path by default).
 
 Within a stage effects run by ``priority`` (lower first): effects that move or reshape jets run
 before effects that add sources between them (``JetInteraction`` uses where jets really land).
@@ -86,6 +88,17 @@ class HiddenEffect:
     def scale(self, points: np.ndarray, geometry: TunnelGeometry):
         """Factor multiplying the whole density at points (P, 2); scalar or (P,)."""
         return 1.0
+
+    def reading(self, force: np.ndarray, geometry: TunnelGeometry) -> np.ndarray:
+        """The plate's force (K,) [N] from the flow it sits in -> the force it takes up (the
+        plate's own drag law; the identity for a plate whose drag follows the local force)."""
+        return force
+
+    def recorded(self, positions: np.ndarray, dt: float) -> np.ndarray:
+        """A sweep's true plate positions (n, 2) [m], sampled every ``dt`` [s] -> the positions
+        the recording pairs with each force sample (motion capture and force sensor out of
+        step); the identity when they are in step."""
+        return positions
 
     # -- helpers ---------------------------------------------------------------------------------
     def _fan_index(self, geometry: TunnelGeometry) -> int:

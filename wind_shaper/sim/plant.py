@@ -135,7 +135,10 @@ class SimulatedTunnel:
         true_pos = (self.path(n, dt, self.geometry.sweep_radius, rng) if region is None
                     else self.path(n, dt, self.geometry.sweep_radius, rng, region=region))
         forces = self.noise.forces(self._plate(state, true_pos), dt, rng)
-        return Sweep(self.noise.positions(true_pos, rng), forces, np.arange(n) * dt, self._pwm.copy())
+        paired = true_pos
+        for effect in self._pipeline:
+            paired = effect.recorded(paired, dt)
+        return Sweep(self.noise.positions(paired, rng), forces, np.arange(n) * dt, self._pwm.copy())
 
     def sweep_chunks(self, max_samples: int = 1000, chunk_samples: int = 50, *,
                      rng: np.random.Generator | None = None, region=None):
@@ -226,6 +229,8 @@ class SimulatedTunnel:
             c = centres[lo:lo + block]
             nodes = (c[:, None, :] + self._nodes[None]).reshape(-1, 2)
             out[lo:lo + block] = self._density(state, nodes).reshape(len(c), q) @ self._weights
+        for effect in self._pipeline:
+            out = effect.reading(out, self.geometry)
         return out
 
     def _hardware(self, pwm) -> np.ndarray:

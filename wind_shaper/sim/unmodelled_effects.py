@@ -20,13 +20,14 @@ from ..core.errors import ConfigError
 from ..core.geometry import neighbour_pairs
 from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl
 from .errors import EffectError
-from .physics import FlatTop, JetGroup
+from .physics import FlatTop, JetGroup, _subset
 
 __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
            'MergingJets', 'ThermalGradient', 'UnequalCurves', 'JetDeflection', 'EscCrosstalk',
            'WallReturnFlow', 'VaneRipple', 'JetSpreading', 'HubShadow', 'NeighbourStarvation',
-           'CoandaAttachment', 'WallLeak', 'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND',
-           'OTHER_FORM', 'PLANT_VARIATIONS']
+           'CoandaAttachment', 'WallLeak', 'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection',
+           'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
+           'PLANT_VARIATIONS']
 
 
 @dataclass(frozen=True)
@@ -524,6 +525,114 @@ class WallLeak(HiddenEffect):
                                   np.array([self.spread]), np.array([-1]))]
 
 
+@dataclass(frozen=True)
+class DragLaw(HiddenEffect):
+    """The plate's drag coefficient falls as the air speeds up (its Reynolds number grows), so
+    the force it takes up grows more slowly than the flow's dynamic pressure. With F the force
+    a plate of constant drag coefficient would take up [N],
+
+        F' = F (max(|F|, floor) / force_ref)^(-exponent / 2)
+
+    (Cd ~ Re^-exponent, Re ~ speed ~ sqrt(F)); F' = F at ``force_ref``. It acts on the local
+    force, whichever fans make it: not on one fan's thrust curve, not on where jets land."""
+
+    exponent: float = 0.25
+    force_ref: float = 2.0
+    floor: float = 0.05
+    name: ClassVar[str] = 'drag_law'
+    bounds: ClassVar = {'exponent': (0.0, 0.8), 'force_ref': (0.1, 50.0), 'floor': (0.001, 1.0)}
+
+    def reading(self, force, geometry):
+        if self.exponent == 0:
+            return force
+        size = np.maximum(np.abs(force), self.floor) / self.force_ref
+        return force * size ** (-0.5 * self.exponent)
+
+
+@dataclass(frozen=True)
+class MocapLatency(HiddenEffect):
+    """Motion capture and the force sensor are out of step: each force sample is recorded with
+    the plate's position ``lag`` [s] earlier (the path is held at its start before that). The
+    field is unchanged; a sweep's force map is smeared and shifted along the plate's own path,
+    which no term of position and commands can describe."""
+
+    lag: float = 0.04
+    name: ClassVar[str] = 'mocap_latency'
+    bounds: ClassVar = {'lag': (0.0, 0.5)}
+
+    def recorded(self, positions, dt):
+        if self.lag == 0 or len(positions) < 2:
+            return positions
+        t = np.arange(len(positions)) * dt
+        earlier = np.clip(t - self.lag, 0.0, None)
+        return np.column_stack([np.interp(earlier, t, positions[:, k]) for k in range(2)])
+
+
+@dataclass(frozen=True)
+class CeilingDownwash(HiddenEffect):
+    """The lab's ceiling above the tunnel's exit turns the plume back down over the middle: a
+    broad force against the jets centred on the axis that follows the fans' mean thrust T_mean
+    [N],
+
+        density -= share * T_mean * exp(-r^2 / spread^2)     (r from the axis [m]).
+
+    Unlike the central fan's jet it does not follow the central fan's command; unlike a uniform
+    draft it is strongest in the middle; unlike a boundary layer it is away from the wall."""
+
+    share: float = 0.12
+    spread: float = 0.25
+    name: ClassVar[str] = 'ceiling_downwash'
+    priority: ClassVar[int] = 2
+    bounds: ClassVar = {'share': (0.0, 2.0), 'spread': (0.02, 1.0)}
+
+    def sources(self, groups, thrust, geometry):
+        enabled = geometry.fans.enabled
+        mean = float(np.mean(np.maximum(thrust[enabled], 0.0))) if enabled.any() else 0.0
+        if self.share == 0 or mean == 0:
+            return groups
+        return groups + [JetGroup(FlatTop(2.0), np.zeros((1, 2)), np.array([-self.share * mean]),
+                                  np.array([self.spread]), np.array([-1]))]
+
+
+@dataclass(frozen=True)
+class WallReflection(HiddenEffect):
+    """The tunnel's wall confines the jets: the part of each jet's flow that would spread
+    beyond the wall is turned back inside. Each off-axis jet gets an image: ``share`` of its
+    strength, as wide, landing mirrored in the wall along the line from the axis through it
+    (at distance 2 R_wall - r_j from the axis, r_j its own). It raises the force near the wall
+    by the nearby jets' own thrusts: neither a boundary layer (which takes a share of the local
+    flow) nor a moved or widened jet."""
+
+    share: float = 0.6
+    name: ClassVar[str] = 'wall_reflection'
+    priority: ClassVar[float] = 1.5  # after jets have moved and reshaped, before added sources
+    bounds: ClassVar = {'share': (0.0, 1.0)}
+
+    def sources(self, groups, thrust, geometry):
+        if self.share == 0:
+            return groups
+        wall = geometry.wall_radius
+        images = []
+        for g in groups:
+            rows = np.flatnonzero(g.fan >= 0)
+            c = g.centres[rows]
+            r = np.hypot(c[:, 0], c[:, 1])
+            keep = (r > 1e-6) & (r < wall)
+            if not keep.any():
+                continue
+            rows, c, r = rows[keep], c[keep], r[keep]
+            image = _subset(g, rows)
+            image.centres = c * ((2.0 * wall - r) / r)[:, None]
+            image.amplitude = self.share * image.amplitude
+            image.fan = np.full(len(rows), -1)
+            if image.metric is not None:  # a stretched footprint is mirrored too: P A P
+                n = c / r[:, None]
+                mirror = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
+                image.metric = mirror @ image.metric @ mirror
+            images.append(image)
+        return groups + images
+
+
 #: Effects of physics that no library family stands for, and in-library effects in another form.
 OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft, ThermalGradient)
 #: Outside the library too, written after every check was set: the held-out physics.
@@ -531,11 +640,15 @@ OUTSIDE_FRESH = (JetDeflection, EscCrosstalk, WallReturnFlow, VaneRipple, JetSpr
 #: Outside the library, written in a later session after every check was set, and run once
 #: before any setting looked at them: the second batch of held-out physics.
 OUTSIDE_SECOND = (HubShadow, NeighbourStarvation, CoandaAttachment, WallLeak)
+#: Outside the library, written in session 15 after every check was set, run once before any
+#: setting looked at them: the third batch of held-out physics (a new plate drag law and a
+#: recording out of step are the first effects outside the flow itself).
+OUTSIDE_THIRD = (DragLaw, MocapLatency, CeilingDownwash, WallReflection)
 OTHER_FORM = (QuadraticSwirl, MergingJets)
 #: Plant variations for benchmarks (not in the workbench's detection table yet).
 PLANT_VARIATIONS = (UnequalCurves,)
 
-for _cls in OUTSIDE_LIBRARY + OUTSIDE_FRESH + OUTSIDE_SECOND + OTHER_FORM + PLANT_VARIATIONS:
+for _cls in OUTSIDE_LIBRARY + OUTSIDE_FRESH + OUTSIDE_SECOND + OUTSIDE_THIRD + OTHER_FORM + PLANT_VARIATIONS:
     if _cls.name in HIDDEN_EFFECTS and HIDDEN_EFFECTS[_cls.name] is not _cls:
         raise EffectError(f'hidden effect name {_cls.name!r} is taken')
     HIDDEN_EFFECTS[_cls.name] = _cls

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from wind_shaper.sim import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, EffectError,
-                             ElongatedFootprint, JetInteraction, SimulatedTunnel, Swirl, TiltedFan,
-                             WallBoundaryLayer, WeakFan, make_effect)
+                             ElongatedFootprint, HiddenEffect, JetInteraction, SimulatedTunnel, Swirl,
+                             TiltedFan, WallBoundaryLayer, WeakFan, make_effect)
 
 CONFIG = Path(__file__).resolve().parents[3] / 'config' / 'sim.yaml'
 
@@ -30,6 +30,14 @@ def test_every_effect_builds_round_trips_and_changes_the_field(name, rig, tunnel
             with pytest.raises(EffectError, match=key):
                 make_effect(name, **{**effect.truth(), key: bad})
     pwm = np.array([0.3, 0.6, 0.3, 0.6, 0.3, 0.6, 0.1])  # CCW-heavy, so swirl shows too
+    if type(effect).recorded is not HiddenEffect.recorded:  # it changes the recording, not the field
+        tunnel.apply(pwm)
+        carried = tunnel.with_effects([effect])
+        carried.apply(pwm)
+        plain, late = (t.sweep(200, rng=np.random.default_rng(3)) for t in (tunnel, carried))
+        np.testing.assert_allclose(late.forces, plain.forces)
+        assert np.max(np.abs(late.positions - plain.positions)) > 0.005
+        return
     changed = tunnel.with_effects([effect]).true_field(pwm, rig.key_points)
     assert np.max(np.abs(changed - tunnel.true_field(pwm, rig.key_points))) > 0.02
 
@@ -308,3 +316,60 @@ def test_wall_leak_follows_the_mean_thrust_not_the_local_jet(perfect, rig, lone)
         deficit = sim.point_field(pwm, gap) - perfect.point_field(pwm, gap)
         assert deficit[0] == pytest.approx(-0.5 * perfect.thrust(pwm).mean(), rel=1e-6)
     assert np.allclose(sim.point_field(np.zeros(7), gap), 0.0)
+
+
+def test_drag_law_bends_the_plates_force_not_the_flow(perfect, rig):
+    from wind_shaper.sim import DragLaw
+    sim = perfect.with_effects([DragLaw(exponent=0.25, force_ref=2.0, floor=0.05)])
+    pwm = np.array([0.2, 0.8, 0.2, 0.8, 0.2, 0.8, 0.5])
+    plain = perfect.true_field(pwm, rig.key_points)
+    expect = plain * (np.maximum(np.abs(plain), 0.05) / 2.0) ** -0.125
+    np.testing.assert_allclose(sim.true_field(pwm, rig.key_points), expect, rtol=1e-12)
+    np.testing.assert_allclose(sim.point_field(pwm, rig.key_points), perfect.point_field(pwm, rig.key_points))
+    assert sim.true_field(np.zeros(7), rig.key_points) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_mocap_latency_pairs_each_force_with_an_earlier_position(perfect, rig):
+    from wind_shaper.sim import MocapLatency
+    pwm = np.full(7, 0.5)
+    late = perfect.with_effects([MocapLatency(lag=0.04)])
+    for t in (perfect, late):
+        t.apply(pwm)
+    a, b = (t.sweep(300, rng=np.random.default_rng(8)) for t in (perfect, late))
+    np.testing.assert_allclose(b.forces, a.forces)       # the same flow, the same forces
+    shift = round(0.04 * perfect.sample_rate_hz)         # 2 samples at 50 Hz
+    np.testing.assert_allclose(b.positions[shift:], a.positions[:-shift], atol=1e-12)
+    np.testing.assert_allclose(b.positions[:shift], a.positions[[0] * shift], atol=1e-12)
+
+
+def test_ceiling_downwash_is_centred_and_follows_the_mean_thrust(perfect, rig, lone):
+    from wind_shaper.sim import CeilingDownwash
+    sim = perfect.with_effects([CeilingDownwash(share=0.12, spread=0.25)])
+    axis, far = np.zeros((1, 2)), np.array([[0.0, 0.3]])
+    for name in ('HM2', 'CM'):
+        pwm = lone(name, 0.6)
+        mean = perfect.thrust(pwm).mean()
+        deficit = sim.point_field(pwm, axis) - perfect.point_field(pwm, axis)
+        assert deficit[0] == pytest.approx(-0.12 * mean, rel=1e-6)
+        deficit_far = sim.point_field(pwm, far) - perfect.point_field(pwm, far)
+        assert deficit_far[0] == pytest.approx(-0.12 * mean * np.exp(-(0.3 / 0.25) ** 2), rel=1e-6)
+
+
+def test_wall_reflection_mirrors_each_jet_in_the_wall(perfect, rig, lone):
+    from wind_shaper.sim import WallReflection
+    sim = perfect.with_effects([WallReflection(share=0.6)])
+    hm2 = rig.fans.index('HM2')
+    hub = rig.fans.positions[hm2]
+    r = np.hypot(*hub)
+    image = hub * (2 * rig.wall_radius - r) / r
+    pwm = lone('HM2', 0.6)
+    # 10 cm beyond the hub the field gains 0.6 x the jet's own force as far from its hub as
+    # this point is from the image
+    p = hub * (r + 0.1) / r
+    mirrored = hub + (p - image)
+    extra = sim.point_field(pwm, p[None]) - perfect.point_field(pwm, p[None])
+    assert extra[0] == pytest.approx(0.6 * perfect.point_field(pwm, mirrored[None])[0], rel=1e-6)
+    # the central fan has no image, and nothing is added with every fan off
+    cm = lone('CM', 0.6)
+    np.testing.assert_allclose(sim.point_field(cm, rig.key_points), perfect.point_field(cm, rig.key_points))
+    np.testing.assert_allclose(sim.point_field(np.zeros(7), rig.key_points), 0.0, atol=1e-12)
