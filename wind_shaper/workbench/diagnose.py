@@ -61,6 +61,7 @@ from .consistency import (SweepCheck, check_across_load, check_across_space, che
 from .data import FitData, SweepSet
 from .discrepancy import SCALE_FEATURES, describe_outside, outside_text
 from .enough import undecided
+from .sync import check_sync
 from .formula import fit_formula, formula_text
 from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
@@ -216,7 +217,8 @@ class Diagnosis:
     high or low against the others (``_off_load``); check_range: no finding's fitted parameter
     may run to the edge of its physical range (``_at_edge``); check_specific: a change of chosen
     fans' jets must keep most of what it explains beside the same change of every fan's jet
-    (``_not_specific``, share ``min_specific``).
+    (``_not_specific``, share ``min_specific``); check_clocks: say when the forces and the
+    positions are out of step (``sync.check_sync``, on the model as given).
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
@@ -228,7 +230,7 @@ class Diagnosis:
                  check_min_sweeps: int = 4, check_tolerance: float = 0.1,
                  check_space: bool = True, check_beside: bool = True, check_load: bool = True,
                  check_range: bool = True, check_specific: bool = True,
-                 min_specific: float = 0.5):
+                 min_specific: float = 0.5, check_clocks: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -243,6 +245,7 @@ class Diagnosis:
         self.check_beside = check_beside
         self.check_load = check_load
         self.check_range = check_range
+        self.check_clocks = check_clocks
         self.check_specific, self.min_specific = check_specific, min_specific
 
     # -- the steps ----------------------------------------------------------------------------
@@ -355,6 +358,7 @@ class Diagnosis:
                            'than once) or give the noise per sample (noise_sd, --noise-sd)')
         self.heldout_.noise_sd = self.noise_sd_
         self.baseline_rmse_, self.baseline_raw_ = self._evaluate(base.model)
+        self.sync_ = check_sync(base.model, data) if self.check_clocks else None
         self.library_ = library
         self.steps_, self.rankings_, current, current_rmse = self._select(base, self.baseline_rmse_)
         self.demoted_ = []
@@ -704,18 +708,29 @@ class Diagnosis:
                 f'others, the first and last with the fans off: on the node graph `wind-shaper collect '
                 f'--design lhs:12 --out NAME` does that (see docs/workbench.md, "Data").')
 
+    def sync_warning(self) -> str:
+        """What to check when the forces and the positions look out of step ('' when not)."""
+        return self.sync_.text() if self.sync_ is not None else ''
+
+    def _warnings(self) -> list[str]:
+        return [w for w in (self.spread_warning(), self.sync_warning()) if w]
+
     def summary(self) -> str:
-        """The verdict in plain words (with the warning about data whose commands barely vary)."""
-        warning = self.spread_warning()
-        tail = f'\n\n{warning}' if warning else ''
+        """The verdict in plain words (with the warnings about data whose commands barely vary
+        and about forces and positions out of step)."""
+        warnings = self._warnings()
+        tail = ''.join(f'\n\n{w}' for w in warnings)
+        return self._verdict_text() + tail
+
+    def _verdict_text(self) -> str:
         if self.verdict_ == 'explained':
             return (f'Nothing to report: the model already explains these sweeps (held-out model error '
-                    f'{self.baseline_rmse_:.3f} N against measurement noise {self.noise_sd_:.3f} N).{tail}')
+                    f'{self.baseline_rmse_:.3f} N against measurement noise {self.noise_sd_:.3f} N).')
         if self.verdict_ == 'unexplained':
             if self.low_spread_:
                 return (f'No effect can be identified on these sweeps: the held-out model error is '
                         f'{self.baseline_rmse_:.3f} N (noise {self.noise_sd_:.3f} N), but the sweeps\' '
-                        f'commands barely vary. See the residual\'s structure below.{tail}')
+                        f'commands barely vary. See the residual\'s structure below.')
             if self.demoted_:
                 more = ' ' + self._demoted_text()
             else:
@@ -773,7 +788,11 @@ class Diagnosis:
             'command_spread': {'median': round(self.command_spread_['median'], 4),
                                'per_fan': {k: round(v, 4) for k, v in self.command_spread_['per_fan'].items()},
                                'too_little': bool(self.low_spread_)},
-            'warnings': [w for w in (self.spread_warning(),) if w],
+            'clocks': ({'lag_s': round(self.sync_.lag_s, 4), 'out_of_step': self.sync_.out_of_step,
+                        'agree': round(self.sync_.agree, 3), 'mse_drop': round(self.sync_.drop, 4),
+                        'per_sweep_s': [round(float(x), 4) for x in self.sync_.per_sweep]}
+                       if self.sync_ is not None else None),
+            'warnings': self._warnings(),
         }
 
 

@@ -1,0 +1,60 @@
+"""Forces and positions out of step (sync.check_sync): the lag between motion capture and the
+force sensor is measured from the sweeps, and the diagnosis says so in words."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from wind_shaper.core.tunnel import Sweep
+from wind_shaper.sim import MocapLatency
+from wind_shaper.workbench.sync import check_sync
+
+
+def _late_by(data, lag):
+    """The sweeps with each position taken ``lag`` [s] later in the path (lag < 0: earlier)."""
+    out = []
+    for s in data.sweeps:
+        t = s.times
+        moved = np.column_stack([np.interp(t + lag, t, s.positions[:, k]) for k in range(2)])
+        out.append(Sweep(moved, s.forces, s.times, s.pwm))
+    return replace(data, sweeps=tuple(out))
+
+
+def test_in_step_sweeps_show_no_lag_even_beside_physics_the_model_lacks(reference, sim_data):
+    for effects in ((), ('honeycomb_blockage',), ('side_draft',)):
+        data, _ = sim_data(*effects)
+        check = check_sync(reference, data)
+        assert abs(check.lag_s) < 0.005 and not check.out_of_step, effects
+        assert check.text() == ''
+
+
+def test_a_late_recording_is_measured_in_either_direction(reference, sim_data):
+    data, _ = sim_data(MocapLatency(lag=0.04))
+    check = check_sync(reference, data)
+    assert check.lag_s == pytest.approx(0.04, abs=0.003) and check.out_of_step
+    assert len(check.per_sweep) == 10  # the two fans-off sweeps cannot show it
+    assert check.agree == 1.0 and check.drop > 0.5
+    assert 'positions arrive 40 ms late' in check.text()
+    # the positions early instead: the clean sweeps with each position taken 60 ms later
+    clean, _ = sim_data()
+    early = check_sync(reference, _late_by(clean, 0.06))
+    assert early.lag_s == pytest.approx(-0.06, abs=0.004) and early.out_of_step
+    assert 'positions arrive 60 ms early' in early.text()
+
+
+def test_sweeps_that_cannot_show_a_lag_give_none(reference, sim_data):
+    data, _ = sim_data()
+    off = data[[0, len(data) - 1]]  # the fans-off sweeps
+    assert check_sync(reference, off) is None
+    still = replace(data, sweeps=tuple(Sweep(np.zeros_like(s.positions), s.forces, s.times, s.pwm)
+                                       for s in data.sweeps))
+    assert check_sync(reference, still) is None
+
+
+def test_the_diagnosis_says_the_clocks_disagree(diagnosed):
+    d, _ = diagnosed(MocapLatency(lag=0.04))
+    assert d.sync_.out_of_step
+    assert 'look out of step' in d.summary()
+    doc = d.to_json()
+    assert doc['clocks']['out_of_step'] and doc['clocks']['lag_s'] == pytest.approx(0.04, abs=0.003)
+    assert any('out of step' in w for w in doc['warnings'])
