@@ -185,8 +185,28 @@ class FanGain(FanWrapper):
         return f'FanGain({self._fans_text(self.gain, lambda g: f"x{g:.3g}")}) o ({self.inner!r})'
 
 
+class _MovedJet(FanWrapper):
+    """A wrapper that moves chosen fans' jets: ``_move(e, j)`` is the move (2,) [m] of fan j's
+    jet (element e); the footprint is evaluated at z - move and lands that far away."""
+
+    def _move(self, e, j) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _transform(self, e, j, U, Z, jacobian):
+        move = self._move(e, j)
+        moved = remember(Z, ('moved_jet', move.tobytes()), lambda: Z - move)
+        return fan_part_batched(self.inner, U, moved, j, jacobian)
+
+    def fan_landing(self, j):
+        def compute():
+            base = fan_landing(self.inner, j)
+            e = self._where.get(int(j))
+            return base if e is None else base + self._move(e, int(j))
+        return self._memoised(('c', j), compute)
+
+
 @register_term
-class FanShift(FanWrapper):
+class FanShift(_MovedJet):
     """Hypothesis: a fan's jet lands ``shift`` = (dx, dy) [m] away from where the prior puts it
     (a tilted or mis-mounted fan, a bent honeycomb cell above it; bounds +-0.15 m per axis).
 
@@ -206,18 +226,8 @@ class FanShift(FanWrapper):
     def shift_of(self, e) -> np.ndarray:
         return self.shift[2 * e:2 * e + 2]
 
-    def _transform(self, e, j, U, Z, jacobian):
-        shift = self.shift_of(e)
-        moved = remember(Z, ('fan_shift', shift.tobytes()), lambda: Z - shift)
-        return fan_part_batched(self.inner, U, moved, j, jacobian)
-
-
-    def fan_landing(self, j):
-        def compute():
-            base = fan_landing(self.inner, j)
-            e = self._where.get(int(j))
-            return base if e is None else base + self.shift_of(e)
-        return self._memoised(('c', j), compute)
+    def _move(self, e, j) -> np.ndarray:
+        return self.shift_of(e)
 
     def __repr__(self):
         vals = self.shift.reshape(-1, 2)
@@ -226,7 +236,7 @@ class FanShift(FanWrapper):
 
 
 @register_term
-class FanPush(FanWrapper):
+class FanPush(_MovedJet):
     """Hypothesis: a fan's jet lands ``push`` [m] farther from the tunnel's axis than the prior
     puts it, along the line from the axis through its hub (push < 0: towards the axis; bounds
     +-0.15 m). Jets that cling to the wall or are drawn to the middle move this way, each in its
@@ -249,21 +259,8 @@ class FanPush(FanWrapper):
         self._outward = np.where(radius[:, None] > 1e-6, hubs / np.maximum(radius, 1e-6)[:, None], 0.0)
         self._check_bounds()
 
-    def shift_of(self, e, j) -> np.ndarray:
-        """The move (2,) [m] of fan j's jet (element e)."""
+    def _move(self, e, j) -> np.ndarray:
         return self.push[e] * self._outward[j]
-
-    def _transform(self, e, j, U, Z, jacobian):
-        shift = self.shift_of(e, j)
-        moved = remember(Z, ('fan_shift', shift.tobytes()), lambda: Z - shift)
-        return fan_part_batched(self.inner, U, moved, j, jacobian)
-
-    def fan_landing(self, j):
-        def compute():
-            base = fan_landing(self.inner, j)
-            e = self._where.get(int(j))
-            return base if e is None else base + self.shift_of(e, int(j))
-        return self._memoised(('c', j), compute)
 
     def __repr__(self):
         return f'FanPush({self._fans_text(self.push, lambda p: f"{100 * p:+.1f} cm outwards")}) o ({self.inner!r})'
