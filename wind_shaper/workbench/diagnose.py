@@ -36,10 +36,15 @@ its command over the sweeps; the median over the enabled fans) below ``min_sprea
 10 % PWM) means the sweeps were taken at nearly one operating point (e.g. a converged shaping
 run). There the held-out sweeps share the training sweeps' commands, so a term that merely
 patches the residual at that operating point passes the held-out test too; no candidate is then
-reported, and the verdict carries a warning saying what data to record instead.
+reported, and the verdict carries a warning saying what data to record instead. The forces
+and the positions must be in step: ``sync.check_sync`` measures the lag between them, and the
+verdict carries a warning when motion capture and the force sensor disagree.
 
 Every effect the selection added is then checked across sweeps (``consistency``): refitted sweep
-by sweep, it must keep one value whatever the commands. One that fails is demoted (``demoted_``:
+by sweep, it must keep one value whatever the commands; then it must hold at its range's
+interior, be specific to what it claims beside broader forms of the same change
+(``broader_forms``), hold on both sides of its footprint and at every load, and not lean on the
+refitted thrust curves. One that fails is demoted (``demoted_``:
 "partly explained by ..., but ...") and never named; ``steps_`` keeps the findings and
 ``selected_`` every step of the selection in order.
 
