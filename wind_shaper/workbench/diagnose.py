@@ -66,12 +66,12 @@ from .consistency import (SweepCheck, check_across_load, check_across_space, che
 from .data import FitData, SweepSet
 from .discrepancy import SCALE_FEATURES, describe_outside, outside_text
 from .enough import undecided
-from .sync import check_sync
 from .formula import fit_formula, formula_text
 from .errors import FitError
 from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_null
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
+from .sync import check_sync
 from .wording import _bic_text, _change_text, drop_phrase, drop_text, pct_text, values_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
@@ -220,9 +220,10 @@ class Diagnosis:
     values spread across sweeps a second check with a discrepancy model beside it
     (``_beside_discrepancy``); check_load: every finding must hold whether the nearest fan runs
     high or low against the others (``_off_load``); check_range: no finding's fitted parameter
-    may run to the edge of its physical range (``_at_edge``); check_specific: a change of chosen
-    fans' jets must keep most of what it explains beside the same change of every fan's jet
-    (``_not_specific``, share ``min_specific``); check_clocks: say when the forces and the
+    may run to the edge of its physical range (``_at_edge``); check_specific: a finding must
+    keep most of what it explains beside broader forms of its change (``broader_forms``: the
+    same change of every fan's jet, every jet pushed from the axis, bridges following the mean
+    thrust; ``_not_specific``, share ``min_specific``); check_clocks: say when the forces and the
     positions are out of step (``sync.check_sync``, on the model as given).
     """
 
