@@ -46,13 +46,17 @@ def _data(setup, args):
         raise WindShaperError('give the sweeps: --sim (the simulated tunnel) or --data PATH (a bag, a '
                               'run folder or a shape report), not both')
     if args.sim:
-        return simulated_sweeps(_sim(setup, args), args.sweeps, seed=args.seed, n_samples=args.samples)
-    if args.hidden:
-        raise WindShaperError('--hidden switches on simulator effects: use it with --sim')
-    names = setup.geometry.fans.names
-    data = load_sweeps(args.data[0], names)
-    for path in args.data[1:]:
-        data = data + load_sweeps(path, names)
+        data = simulated_sweeps(_sim(setup, args), args.sweeps, seed=args.seed, n_samples=args.samples)
+    else:
+        if args.hidden:
+            raise WindShaperError('--hidden switches on simulator effects: use it with --sim')
+        names = setup.geometry.fans.names
+        data = load_sweeps(args.data[0], names)
+        for path in args.data[1:]:
+            data = data + load_sweeps(path, names)
+    if getattr(args, 'position_lag', 0.0):
+        from ..workbench.sync import repaired
+        data = repaired(data, args.position_lag)
     return data
 
 
@@ -264,6 +268,10 @@ def _common(p, multi_model=False):
                      help='recorded sweeps: an experiment folder or bag of `wind-shaper collect`, a '
                           'coordinator run folder, a rosbag2 bag or a shape report; repeat to pool '
                           'several (e.g. an experiment and its suggested follow-up)')
+    src.add_argument('--position-lag', type=float, default=0.0, metavar='S',
+                     help='pair each force with the plate\'s position S seconds later: for motion '
+                          'capture that arrived S late (negative: early); the diagnosis measures it '
+                          '("the positions arrive 40 ms late" is 0.040)')
     if multi_model:
         p.add_argument('--model', type=Path, action='append', default=None,
                        help='a model file; repeat to compare several (default: the reference)')

@@ -22,10 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.errors import ConfigError
 from ..model import Term
 from .data import SweepSet
 
-__all__ = ['SyncCheck', 'check_sync']
+__all__ = ['SyncCheck', 'check_sync', 'repaired', 'MAX_REPAIR_S']
+
+#: The largest lag [s] ``repaired`` accepts: beyond it the recording is broken, not late.
+MAX_REPAIR_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -56,13 +60,30 @@ class SyncCheck:
                 f'removes {100 * self.drop:.0f} % of the model\'s mean squared error). Check that motion '
                 f'capture and the force sensor share one clock. A lag smears the field along the plate\'s '
                 f'path: no effect of the library describes it, and the noise estimated from the sweeps '
-                f'counts it as turbulence, so the model error above reads too small until it is mended.')
+                f'counts it as turbulence, so the model error above reads too small until it is mended. '
+                f'To diagnose these sweeps as they should have been paired, give `--position-lag '
+                f'{self.lag_s:.3f}` (seconds).')
 
 
 def _shifted(sweep, lag: float) -> np.ndarray:
     """The sweep's positions at t + lag (held at the ends)."""
     t = sweep.times
     return np.column_stack([np.interp(t + lag, t, sweep.positions[:, k]) for k in range(2)])
+
+
+def repaired(sweeps: SweepSet, lag_s: float) -> SweepSet:
+    """``sweeps`` with each force paired with the plate's position ``lag_s`` [s] later (held at
+    a sweep's end): what motion capture that arrives ``lag_s`` late should have recorded (a
+    negative lag for positions that arrive early). Forces, times and commands are unchanged."""
+    lag = float(lag_s)
+    if not (np.isfinite(lag) and abs(lag) <= MAX_REPAIR_S):
+        raise ConfigError(f'a position lag must be a number of seconds within +-{MAX_REPAIR_S:g} (the '
+                          f'diagnosis measures it: "the positions arrive 40 ms late" is 0.040); got {lag_s!r}')
+    if lag == 0:
+        return sweeps
+    moved = tuple(type(s)(_shifted(s, lag), s.forces, s.times, s.pwm) for s in sweeps.sweeps)
+    source = f'{sweeps.source} (positions re-paired {1000 * lag:+.0f} ms)'.strip()
+    return type(sweeps)(moved, sweeps.fan_names, source, sweeps.labels)
 
 
 def check_sync(model: Term, sweeps: SweepSet, *, max_lag: float = 0.2, min_force: float = 0.05,

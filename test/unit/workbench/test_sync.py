@@ -7,7 +7,8 @@ import pytest
 
 from wind_shaper.core.tunnel import Sweep
 from wind_shaper.sim import MocapLatency
-from wind_shaper.workbench.sync import check_sync
+from wind_shaper.core.errors import ConfigError
+from wind_shaper.workbench.sync import check_sync, repaired
 
 
 def _late_by(data, lag):
@@ -58,3 +59,33 @@ def test_the_diagnosis_says_the_clocks_disagree(diagnosed):
     doc = d.to_json()
     assert doc['clocks']['out_of_step'] and doc['clocks']['lag_s'] == pytest.approx(0.04, abs=0.003)
     assert any('out of step' in w for w in doc['warnings'])
+
+
+def test_re_paired_sweeps_are_in_step_again(reference, sim_data):
+    data, _ = sim_data(MocapLatency(lag=0.04))
+    late = check_sync(reference, data)
+    assert '--position-lag 0.040' in late.text()
+    mended = repaired(data, late.lag_s)
+    check = check_sync(reference, mended)
+    assert abs(check.lag_s) < 0.003 and not check.out_of_step
+    assert [s.forces.tolist() for s in mended.sweeps] == [s.forces.tolist() for s in data.sweeps]
+    assert 're-paired +40 ms' in mended.source
+    assert repaired(data, 0.0) is data
+    for bad in (float('nan'), 2.0, 'soon'):
+        with pytest.raises((ConfigError, ValueError), match='seconds|could not convert'):
+            repaired(data, bad)
+
+
+def test_every_model_command_takes_the_position_lag(wb_setup, reference):
+    import argparse
+
+    from wind_shaper.cli.model import _data, register
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    args = parser.parse_args(['model', 'diagnose', '--sim', '--hidden', 'mocap_latency:lag=0.06',
+                              '--sweeps', '6', '--samples', '400', '--seed', '3', '--position-lag', '0.06'])
+    mended = _data(wb_setup, args)
+    assert 're-paired +60 ms' in mended.source
+    assert not check_sync(reference, mended).out_of_step
+    args.position_lag = 0.0
+    assert check_sync(reference, _data(wb_setup, args)).lag_s == pytest.approx(0.06, abs=0.004)
