@@ -14,6 +14,12 @@ from .errors import SweepError
 from .geometry import TunnelGeometry
 
 
+def path_at(times, positions, when) -> np.ndarray:
+    """A path sampled at ``times`` (n,) [s] as ``positions`` (n, 2) [m], read at ``when`` (K,)
+    [s]: linear between samples, held at the ends."""
+    return np.column_stack([np.interp(when, times, positions[:, k]) for k in range(2)])
+
+
 @dataclass(frozen=True)
 class Sweep:
     """One sweep of the force plate at fixed fan commands.
@@ -64,6 +70,11 @@ class Sweep:
             raise SweepError('no sweep parts to join')
         return Sweep(np.vstack([p.positions for p in parts]), np.concatenate([p.forces for p in parts]),
                      np.concatenate([p.times for p in parts]), parts[0].pwm)
+
+    def positions_at(self, when) -> np.ndarray:
+        """The plate's path (K, 2) [m] at times ``when`` (K,) [s], linear between samples and
+        held at the sweep's ends."""
+        return path_at(self.times, self.positions, when)
 
     def to_measurements(self) -> 'Measurements':
         return Measurements(np.tile(self.pwm, (len(self), 1)), self.positions, self.forces)

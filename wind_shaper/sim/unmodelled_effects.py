@@ -18,9 +18,10 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.geometry import neighbour_pairs
+from ..core.tunnel import path_at
 from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl
 from .errors import EffectError
-from .physics import FlatTop, JetGroup, _subset
+from .physics import FlatTop, JetGroup
 
 __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'QuadraticSwirl',
            'MergingJets', 'ThermalGradient', 'UnequalCurves', 'JetDeflection', 'EscCrosstalk',
@@ -28,6 +29,22 @@ __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'Q
            'CoandaAttachment', 'WallLeak', 'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection',
            'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
            'PLANT_VARIATIONS']
+
+
+def _mean_thrust(thrust, geometry) -> float:
+    """The enabled fans' mean thrust [N] (negative thrusts count as 0): the tunnel's pressure."""
+    enabled = geometry.fans.enabled
+    return float(np.mean(np.maximum(thrust[enabled], 0.0))) if enabled.any() else 0.0
+
+
+def _mean_thrust_deficit(groups, thrust, geometry, centre, share, spread):
+    """``groups`` and a force against the jets ``share`` x the mean thrust deep at ``centre``
+    (2,) [m], exp(-d^2 / spread^2) around it (spread [m])."""
+    mean = _mean_thrust(thrust, geometry)
+    if share == 0 or mean == 0:
+        return groups
+    return groups + [JetGroup(FlatTop(2.0), np.reshape(centre, (1, 2)), np.array([-share * mean]),
+                              np.array([spread]), np.array([-1]))]
 
 
 @dataclass(frozen=True)
@@ -339,8 +356,7 @@ class WallReturnFlow(HiddenEffect):
                         'n_ring': (6, 360)}
 
     def sources(self, groups, thrust, geometry):
-        enabled = geometry.fans.enabled
-        mean = float(np.mean(np.maximum(thrust[enabled], 0.0))) if enabled.any() else 0.0
+        mean = _mean_thrust(thrust, geometry)
         if self.share == 0 or mean == 0:
             return groups
         n = int(self.n_ring)
@@ -515,14 +531,9 @@ class WallLeak(HiddenEffect):
     bounds: ClassVar = {'angle': (-360.0, 360.0), 'share': (0.0, 2.0), 'spread': (0.01, 0.4)}
 
     def sources(self, groups, thrust, geometry):
-        enabled = geometry.fans.enabled
-        mean = float(np.mean(np.maximum(thrust[enabled], 0.0))) if enabled.any() else 0.0
-        if self.share == 0 or mean == 0:
-            return groups
         a = np.radians(self.angle)
-        gap = geometry.wall_radius * np.array([[np.cos(a), np.sin(a)]])
-        return groups + [JetGroup(FlatTop(2.0), gap, np.array([-self.share * mean]),
-                                  np.array([self.spread]), np.array([-1]))]
+        gap = geometry.wall_radius * np.array([np.cos(a), np.sin(a)])
+        return _mean_thrust_deficit(groups, thrust, geometry, gap, self.share, self.spread)
 
 
 @dataclass(frozen=True)
@@ -564,8 +575,7 @@ class MocapLatency(HiddenEffect):
         if self.lag == 0 or len(positions) < 2:
             return positions
         t = np.arange(len(positions)) * dt
-        earlier = np.clip(t - self.lag, 0.0, None)
-        return np.column_stack([np.interp(earlier, t, positions[:, k]) for k in range(2)])
+        return path_at(t, positions, t - self.lag)
 
 
 @dataclass(frozen=True)
@@ -586,12 +596,7 @@ class CeilingDownwash(HiddenEffect):
     bounds: ClassVar = {'share': (0.0, 2.0), 'spread': (0.02, 1.0)}
 
     def sources(self, groups, thrust, geometry):
-        enabled = geometry.fans.enabled
-        mean = float(np.mean(np.maximum(thrust[enabled], 0.0))) if enabled.any() else 0.0
-        if self.share == 0 or mean == 0:
-            return groups
-        return groups + [JetGroup(FlatTop(2.0), np.zeros((1, 2)), np.array([-self.share * mean]),
-                                  np.array([self.spread]), np.array([-1]))]
+        return _mean_thrust_deficit(groups, thrust, geometry, np.zeros(2), self.share, self.spread)
 
 
 @dataclass(frozen=True)
@@ -621,7 +626,7 @@ class WallReflection(HiddenEffect):
             if not keep.any():
                 continue
             rows, c, r = rows[keep], c[keep], r[keep]
-            image = _subset(g, rows)
+            image = g.split(rows)[1]
             image.centres = c * ((2.0 * wall - r) / r)[:, None]
             image.amplitude = self.share * image.amplitude
             image.fan = np.full(len(rows), -1)

@@ -72,7 +72,7 @@ from .fitting import FitResult, Frozen, bic, fit_model, jackknife_std, z_from_nu
 from .library import Candidate, Library, apply_candidate, default_library
 from .metrics import HeldOut
 from .sync import check_sync
-from .wording import _bic_text, _change_text, drop_phrase, drop_text, pct_text, values_text
+from .wording import _bic_text, _change_text, drop_text, pct_text, values_text
 
 __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_SWEEPS']
 
@@ -92,7 +92,7 @@ SPECIFIC_FAMILIES = ('fan_shift', 'fan_width', 'fan_elongation', 'fan_shape', 'j
 def every_fan_form(candidate: Candidate, cls: type, title: str = 'every fan alike') -> Candidate:
     """``candidate``'s change applied to every enabled fan with one shared value: a term of
     class ``cls`` (a ``FanWrapper``) with ``group='all'``, placed as the candidate is."""
-    kind = getattr(cls, 'kind', candidate.family)
+    kind = cls.kind
     return replace(candidate, name=f'{kind}[{ALL_FANS}]', label=f'{kind}[{ALL_FANS}]', family=kind,
                    title=f'{candidate.title} ({title})', fans=(),
                    make=lambda m, **p: cls(m.fans, m, group=ALL_FANS, **p))
@@ -127,12 +127,13 @@ def broader_forms(candidate: Candidate, node: Term, fans) -> list:
     out = [(every_fan_form(candidate, type(node)), candidate.params(node),
             "the same change of every fan's jet")]
     if isinstance(node, FanShift) and node.fan is not None:
-        hubs = np.asarray(fans.positions, float)[node._idx]
+        hubs = np.asarray(fans.positions, float)[[fans.index(name) for name in node.fan]]
         radius = np.hypot(hubs[:, 0], hubs[:, 1])
         shifts = node.shift.reshape(-1, 2)
         outward = [float(s @ h / r) for s, h, r in zip(shifts, hubs, radius) if r > 1e-6]
         if outward:
-            push = float(np.clip(np.mean(outward), -0.15, 0.15))
+            (bounds,) = [h.bounds for h in FanPush.hypers if h.name == 'push']
+            push = float(np.clip(np.mean(outward), *bounds))
             out.append((every_fan_form(candidate, FanPush, 'every jet pushed from the axis alike'),
                         {'push': push}, 'every jet moved outwards from the axis by one distance'))
     return out
@@ -594,8 +595,8 @@ class Diagnosis:
                     what = 'its pairs of jets' if isinstance(node, JetInteraction) else 'its fans'
                     return t, (f'it is not specific to {what}: a broader form, {words}, takes the '
                                f'held-out error down by {pct_text(every_alone)} (this finding alone: '
-                               f'{pct_text(alone)}), and beside it this finding '
-                               f'{drop_phrase(beside).replace("takes it down by", "takes it down by only")}; '
+                               f'{pct_text(alone)}), and with this finding added beside it the held-out error '
+                               f'{_change_text(beside)}; '
                                f'a change of the whole flow, such as a draft, jets that spread with their '
                                f'thrust or cling to the wall, or a leak that follows the tunnel\'s pressure, '
                                f'shows partly as this finding')

@@ -65,12 +65,6 @@ class SyncCheck:
                 f'{self.lag_s:.3f}` (seconds).')
 
 
-def _shifted(sweep, lag: float) -> np.ndarray:
-    """The sweep's positions at t + lag (held at the ends)."""
-    t = sweep.times
-    return np.column_stack([np.interp(t + lag, t, sweep.positions[:, k]) for k in range(2)])
-
-
 def repaired(sweeps: SweepSet, lag_s: float) -> SweepSet:
     """``sweeps`` with each force paired with the plate's position ``lag_s`` [s] later (held at
     a sweep's end): what motion capture that arrives ``lag_s`` late should have recorded (a
@@ -81,7 +75,7 @@ def repaired(sweeps: SweepSet, lag_s: float) -> SweepSet:
                           f'diagnosis measures it: "the positions arrive 40 ms late" is 0.040); got {lag_s!r}')
     if lag == 0:
         return sweeps
-    moved = tuple(type(s)(_shifted(s, lag), s.forces, s.times, s.pwm) for s in sweeps.sweeps)
+    moved = tuple(type(s)(s.positions_at(s.times + lag), s.forces, s.times, s.pwm) for s in sweeps.sweeps)
     source = f'{sweeps.source} (positions re-paired {1000 * lag:+.0f} ms)'.strip()
     return type(sweeps)(moved, sweeps.fan_names, source, sweeps.labels)
 
@@ -92,22 +86,20 @@ def check_sync(model: Term, sweeps: SweepSet, *, max_lag: float = 0.2, min_force
     docstring), or None when no sweep can show it (every sweep fans off, or the plate held
     still: less than ``min_travel`` [m] of path, or forces under ``min_force`` [N] RMS).
     ``max_lag`` [s]: the largest lag tried either way."""
-    fan_names = sweeps.fan_names
     best, sse0, sse_best, dts = [], 0.0, 0.0, []
     for s in sweeps.sweeps:
-        finite = np.isfinite(s.forces) & np.all(np.isfinite(s.positions), axis=1)
-        if finite.sum() < 20 or not np.all(finite):
-            s = type(s)(s.positions[finite], s.forces[finite], s.times[finite], s.pwm)
-            if len(s.forces) < 20:
-                continue
+        s = s.finite()
+        if len(s) < 20:
+            continue
         dt = float(np.median(np.diff(s.times)))
         travel = float(np.sum(np.hypot(*np.diff(s.positions, axis=0).T)))
         if not (dt > 0 and travel >= min_travel and np.sqrt(np.mean(s.forces ** 2)) >= min_force):
             continue
         steps = int(np.ceil(max_lag / dt))
         lags = np.arange(-steps, steps + 1) * dt
-        U = np.broadcast_to(np.asarray(s.pwm, float), (len(s.forces), len(fan_names)))
-        sse = np.array([float(np.sum((s.forces - model(U, _shifted(s, lag))) ** 2)) for lag in lags])
+        U = np.broadcast_to(np.asarray(s.pwm, float), (len(s), len(s.pwm)))
+        sse = np.array([float(np.sum((s.forces - model(U, s.positions_at(s.times + lag))) ** 2))
+                        for lag in lags])
         k = int(np.argmin(sse))
         lag = lags[k]
         if 0 < k < len(lags) - 1:  # a parabola through the minimum and its neighbours

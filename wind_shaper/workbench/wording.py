@@ -38,15 +38,6 @@ def pct_text(gain: float) -> str:
     return f'{100 * gain:.0f} %'
 
 
-def drop_phrase(gain: float) -> str:
-    """'takes it down by 62 %', or for no drop 'does not take it down (it rises by 11 %)'."""
-    if gain > 0.005:
-        return f'takes it down by {pct_text(gain)}'
-    if gain < -0.005:
-        return f'does not take it down (it rises by {pct_text(-gain)})'
-    return 'does not take it down'
-
-
 def values_text(value) -> str:
     """A parameter's value(s), 3 significant digits: '0.955' or '(0.047, -0.003)'."""
     v = np.atleast_1d(np.asarray(value, float))
