@@ -45,6 +45,7 @@ import scipy.sparse as sp
 
 from ..core.errors import ConfigError
 from .basis import FanBasis
+from .chain import Contradiction, chain_start, contradiction
 from .qp import _bounded_lsq, _thrust_space_qp, _thrust_space_step
 from .secant import SecantCorrection
 from .shape_fit import BASES, ShapeFit, _fit_gains_sparse
@@ -85,7 +86,7 @@ class AdaptiveUpdate:
     radius_min: float = 0.01
     radius_max: float = 0.65
     correction: str = 'shape'
-    fit_from: int = 2
+    fit_from: int = 1
     secant: bool = True
     secant_memory: int = 6
     secant_min_step: float = 0.02
@@ -100,6 +101,8 @@ class AdaptiveUpdate:
     inner_iterations: int = 5
     stop_factor: float = 0.5
     stop_patience: int = 1
+    fit_points: float | None = 20.0
+    relearn: bool = True
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -142,6 +145,11 @@ class AdaptiveUpdate:
         return basis
 
     def step(self, inp: UpdateInput) -> UpdateStep:
+        return self._step(inp, relearn=None)
+
+    def _step(self, inp: UpdateInput, relearn: Contradiction | None) -> UpdateStep:
+        """One step; ``relearn``: the newest map contradicted the earlier ones, so this step
+        uses the newest map alone (``chain``)."""
         on = np.asarray(inp.enabled, dtype=bool)
         U_k = self.bounds.project(inp.U, on)
         delta = np.asarray(inp.delta, dtype=float)
@@ -161,8 +169,15 @@ class AdaptiveUpdate:
         stop_rule = self.stopping
         err_noise = stop_rule.noise(inp.std)
 
+        # -- the maps the steps build on and the fit uses (``chain``: restarts, relearning) ------
+        base_from, fit_from = chain_start([m[3] for m in maps])
+        if relearn is not None:
+            base_from = fit_from = len(maps) - 1
+        restarted = relearn is not None or (bool(history) and base_from == len(maps) - 1
+                                             and dict(history[-1].info).get('restart_next'))
+
         # -- the base: the best map so far (ties go to the latest) ----------------------------
-        b = int(len(maps) - 1 - np.argmin(errors[::-1]))
+        b = int(len(maps) - 1 - np.argmin(errors[base_from:][::-1]))
         if errors[-1] <= errors[b] + 0.5 * err_noise:
             b = len(maps) - 1
         U_b, r_b = maps[b][0], maps[b][1]
@@ -172,7 +187,7 @@ class AdaptiveUpdate:
             near = [1.0] * len(maps)
         # the fit and the secant use the most recent `memory` maps and the base (old maps far
         # from the operating point add little and cost time)
-        window = sorted(set(range(max(0, len(maps) - self.memory), len(maps))) | {b})
+        window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b})
 
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
@@ -195,7 +210,8 @@ class AdaptiveUpdate:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std)
             if fitted:
-                abs_maps = [(maps[i][0], maps[i][1] + ref, near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
+                share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
+                abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
                 theta = fit.fit(basis, abs_maps, on)
             else:
@@ -231,13 +247,19 @@ class AdaptiveUpdate:
         M_vals = {i: model(maps[i][0])[0] for i in window}
         M_b, J_b = model(U_b)
 
+        # -- does the newest map contradict what the earlier ones taught? -----------------------
+        if relearn is None and self.relearn:
+            verdict = contradiction(maps, fit_from, model, 0.5 * self.noise_std)
+            if verdict is not None and verdict.contradicts:
+                return self._step(inp, relearn=verdict)
+
         # -- trust radius from the last step's prediction ---------------------------------------
         radius, rho, accepted = self.radius, None, True
         if not history and inp.k > 0:
             # Called without the run's history (e.g. by a node that keeps none): the rule cannot
             # see whether its steps work, so the radius shrinks like the paper's schedule.
             radius = max(self.radius_min, self.radius / (inp.k + 1))
-        if history:
+        if history and not restarted:
             last = dict(history[-1].info)
             radius = float(last.get('radius', self.radius))
             pred, base_err = last.get('predicted_error'), last.get('base_error')
@@ -342,6 +364,8 @@ class AdaptiveUpdate:
         predicted_error = float(np.mean(pred_c ** 2))
         improvement = errors[b] - predicted_error
         stop, reason = stop_rule(inp.k, improvement, inp.std, history)
+        if restarted:   # a new start: what the steps before it found does not count
+            stop, reason = False, ''
         if not stop and history and rho is not None and radius <= self.radius_min * (1 + 1e-9) and inp.k + 1 >= stop_rule.min_iterations:
             stop, reason = True, (f'the trust radius has shrunk to its minimum {self.radius_min:g}: '
                                   f'the predicted gains are not realised, the rest is model error')
@@ -352,6 +376,8 @@ class AdaptiveUpdate:
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'stop_reason': reason}
+        if relearn is not None:
+            info['relearned'] = relearn.to_json()
         # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within
         # the first trust region (without a history it is step_fraction / (k + 1), the paper's
         # schedule); the radius itself [PWM fraction] is info['radius']

@@ -171,7 +171,7 @@ class ShapingLoop:
         delta = self.target - est.mean
         next_pwm = step_size = None
         info = {'region': region} if region else {}
-        rule = self.rule
+        rule, check = self.rule, None
         if self.k == 0 and not self.history and self.warm is not None:
             check = self.warm.compare(est.mean, est.std)
             info['warm_start'] = {**self.warm.to_json(), 'check': check.to_json(),
@@ -187,6 +187,9 @@ class ShapingLoop:
                                          target=self.target, history=history))
             next_pwm, step_size = step.U_next, step.step_size
             info = {**dict(step.info), **info}
+            if check is not None:
+                next_pwm, restart = self.warm.next_commands(check, next_pwm)
+                info.update(restart)
         true_field = true_error = None
         if self.truth is not None:
             true_field = self.truth(applied)

@@ -30,6 +30,10 @@ from .update import CommandBounds, UpdateInput
 #: The first sweep disagrees with the prediction when its RMS difference exceeds this many times
 #: what the prior's error and the estimate's noise allow.
 MISMATCH_FACTOR = 3.0
+#: The prior's optimum is not this tunnel's when the first sweep's error [N^2] exceeds the
+#: promised error by more than this many times the prior's calibration error and the estimate's
+#: noise (both as variances per key point): the run then starts again wider.
+PROMISE_FACTOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -43,12 +47,23 @@ class PredictionCheck:
     ratio: float
     mismatch: bool
     checked: bool = True
+    measured_mse: float = float('nan')
+    promised_mse: float = float('nan')
+    allowed_mse: float = float('nan')
+    restart: bool = False
 
     def text(self) -> str:
         if not self.checked:
             return (f'the first sweep differs from the prior\'s prediction by {self.rms_difference:.3f} N '
                     f'RMS; not judged: the prior\'s model file records no calibration error '
                     f'(heldout_rmse_N or rmse_N; `wind-shaper calibrate` writes it)')
+        if self.restart:
+            return (f'the first sweep\'s error is {np.sqrt(self.measured_mse):.3f} N RMS where the prior '
+                    f'promised {np.sqrt(self.promised_mse):.3f} N (its own calibration error and the '
+                    f'estimate noise allow up to {np.sqrt(self.allowed_mse):.3f} N): the prior does not '
+                    f'match this tunnel and its optimum is not the tunnel\'s, so the run starts again '
+                    f'from the wider start and learns the tunnel from there (the sweep at the prior\'s '
+                    f'optimum still counts as data); recalibrate with `wind-shaper calibrate` when you can')
         if self.mismatch:
             return (f'the first sweep differs from the prior\'s prediction by {self.rms_difference:.3f} N '
                     f'RMS, {self.ratio:.1f} x what the prior\'s error and the estimate noise allow '
@@ -62,7 +77,9 @@ class PredictionCheck:
         def num(v):
             return round(v, 5) if np.isfinite(v) else None
         return {'rms_difference_N': num(self.rms_difference), 'expected_N': num(self.expected),
-                'ratio': num(self.ratio), 'mismatch': bool(self.mismatch), 'checked': bool(self.checked)}
+                'ratio': num(self.ratio), 'mismatch': bool(self.mismatch), 'checked': bool(self.checked),
+                'measured_mse_N2': num(self.measured_mse), 'promised_mse_N2': num(self.promised_mse),
+                'allowed_mse_N2': num(self.allowed_mse), 'restart': bool(self.restart)}
 
 
 @dataclass(frozen=True)
@@ -80,6 +97,8 @@ class WarmStart:
     at_upper: tuple = ()
     at_lower: tuple = ()
     notes: list = field(default_factory=list)
+    target: np.ndarray | None = None
+    start_U: np.ndarray | None = None
 
     @property
     def on_bound(self) -> bool:
@@ -91,7 +110,8 @@ class WarmStart:
         return (f'warm start at the prior\'s optimum: predicted RMSE {self.predicted_rmse:.3f} N{err}; '
                 f'the prior gives {self.start_rmse:.3f} N at the fixed start')
 
-    def compare(self, mean, std=None, factor: float = MISMATCH_FACTOR) -> PredictionCheck:
+    def compare(self, mean, std=None, factor: float = MISMATCH_FACTOR,
+                promise_factor: float = PROMISE_FACTOR) -> PredictionCheck:
         """The first sweep's estimate (mean, std at the key points [N]) against the prediction."""
         mean = np.asarray(mean, dtype=float)
         rms = float(np.sqrt(np.mean((mean - self.predicted) ** 2)))
@@ -100,7 +120,25 @@ class WarmStart:
         s2 = 0.0 if std is None else float(np.mean(np.asarray(std, dtype=float) ** 2))
         expected = float(np.sqrt(self.model_error ** 2 + s2))
         ratio = rms / expected if expected > 0 else float('inf')
-        return PredictionCheck(rms, expected, ratio, bool(ratio > factor))
+        measured = promised = allowed = float('nan')
+        restart = False
+        if self.target is not None:
+            measured = float(np.mean((mean - self.target) ** 2))
+            promised = self.predicted_rmse ** 2
+            allowed = promised + promise_factor * (self.model_error ** 2 + s2)
+            restart = bool(measured > allowed and self.start_U is not None
+                           and not np.allclose(self.start_U, self.U))
+        return PredictionCheck(rms, expected, ratio, bool(ratio > factor), True, measured, promised,
+                               allowed, restart)
+
+    def next_commands(self, check: PredictionCheck, U_next: np.ndarray) -> tuple[np.ndarray, dict]:
+        """The commands after the first sweep and what to record with them: the wider start
+        (``start_U``, marked ``restart_next`` for the update rule, ``chain``) when the check says
+        the prior's optimum is not this tunnel's, else the update's own ``U_next``."""
+        if not check.restart:
+            return U_next, {}
+        return self.start_U.copy(), {'restart_next': {'reason': check.text(),
+                                                      'U': np.round(self.start_U, 6).tolist()}}
 
     def to_json(self) -> dict:
         return {'U': np.round(self.U, 6).tolist(), 'predicted_rmse_N': round(self.predicted_rmse, 5),
@@ -153,7 +191,8 @@ def warm_start(model, key_points, target, bounds: CommandBounds, enabled, *, fan
     at_upper = tuple(nm for nm, u, e in zip(names, U, on) if e and u >= bounds.u_max - tol)
     at_lower = tuple(nm for nm, u, e in zip(names, U, on) if e and u <= bounds.u_min + tol)
     ws = WarmStart(U, predicted, float(np.sqrt(np.mean((predicted - target) ** 2))),
-                   float(model_error), rmse(U_start), at_upper, at_lower)
+                   float(model_error), rmse(U_start), at_upper, at_lower, target=target,
+                   start_U=U_start)
     if at_upper:
         ws.notes.append(f'the prior\'s optimum puts {", ".join(at_upper)} at u_max = {bounds.u_max:g}: '
                         f'per the prior the target needs more than those fans give, so the run '
@@ -199,4 +238,5 @@ def first_step_rule(rule, check: PredictionCheck | None):
     return replace(rule, radius=half)
 
 
-__all__ = ['WarmStart', 'PredictionCheck', 'warm_start', 'first_step_rule', 'MISMATCH_FACTOR']
+__all__ = ['WarmStart', 'PredictionCheck', 'warm_start', 'first_step_rule', 'MISMATCH_FACTOR',
+           'PROMISE_FACTOR']

@@ -275,7 +275,7 @@ class ShapingRun:
         estimate = FieldEstimate(kp, mean, std, closest_samples(sweep, kp).key_distance,
                                  int(answer.n_used))
         target_values, model = self.target.values(kp), self.model
-        warm_info = {}
+        warm_info, check = {}, None
         if k == 0 and self.warm is not None and not self.history:
             check = self.warm.compare(mean, std)
             warm_info = {'warm_start': {**self.warm.to_json(), 'check': check.to_json(),
@@ -285,7 +285,11 @@ class ShapingRun:
         step = rule.step(UpdateInput(k, U.copy(), target_values - mean, J, self.enabled, std,
                                      model=model, key_points=kp, target=target_values,
                                      history=tuple(self.history)))
-        U_next = self.bounds.project(step.U_next, self.enabled)  # never outside the bounds
+        U_next = step.U_next
+        if check is not None:   # the prior's optimum not this tunnel's: start again wider
+            U_next, restart = self.warm.next_commands(check, U_next)
+            warm_info.update(restart)
+        U_next = self.bounds.project(U_next, self.enabled)  # never outside the bounds
         predicted = mean + J @ (U_next - U)
         stamps['finished'] = time.time()
         data = IterationData(
