@@ -77,8 +77,30 @@ METHODS = {
     'warm': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': False},
     'warm+short': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True},
     'warm+region': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True, 'region': True},
+    'flat': {'rule': {'method': 'adaptive'}, 'u0': 0.5, 'short': True},
 }
+SHIPPED = 'warm+short'
 NOMINAL_TARGETS = ['uniform', 'gaussian@LM1', 'parabolic', 'expr:2.5 + 0.5*cos(3*theta)*r/0.3']
+#: Tunnels whose physics the prior's per-fan corrections cannot absorb; the prior is calibrated
+#: on each (the paper's held-plate batch), as a lab would. The first two were looked at while
+#: the warm start's checks were written; the last two were written afterwards and run once.
+UNFAMILIAR = {
+    'weak + swirl + merging + wall': [
+        {'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5},
+        {'name': 'merging_jets'}, {'name': 'wall_boundary_layer'}],
+    'same harsher': [
+        {'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.75}, {'name': 'swirl', 'gain': 0.5},
+        {'name': 'merging_jets', 'strength': 0.5, 'exponent': 0.75},
+        {'name': 'wall_boundary_layer', 'thickness': 0.04}],
+    'supply sag + core + tilt': [
+        {'name': 'supply_sag', 'sag': 0.3}, {'name': 'recirculation_core', 'share': 0.4},
+        {'name': 'tilted_fan', 'fan': 'LM2', 'shift': [0.04, 0.0]},
+        {'name': 'weak_fan', 'fan': 'LM3', 'gain': 0.85}],
+    'starved + spreading + shadow': [
+        {'name': 'plenum_starvation', 'coupling': 0.5}, {'name': 'jet_spreading'},
+        {'name': 'hub_shadow'}, {'name': 'esc_crosstalk', 'fan': 'LM1', 'source': 'HM1',
+                                 'coupling': 0.2}],
+}
 MIXES = {
     'weak HM2 + swirl': [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5}],
     'blocked patch + tilted LM2': [{'name': 'honeycomb_blockage'}, {'name': 'tilted_fan', 'fan': 'LM2'}],
@@ -147,6 +169,11 @@ def make_plants(names, tmp: Path) -> list[Plant]:
             geo = wall(4, 121)
             s = replace(nominal, geometry=geo)
             plants.append(Plant(name, s, [], wall_prior(geo.fans), float('nan'), ['uniform:6', 'gaussian@F01_01']))
+        elif name in UNFAMILIAR:
+            s = Setup.load(_edited_config(tmp / f'unfamiliar{len(plants)}', {}))
+            prior, err = _calibrated(s, UNFAMILIAR[name])
+            plants.append(Plant(name, s, UNFAMILIAR[name], prior, err,
+                                ['uniform', 'parabolic', 'gaussian@LM1']))
         elif name in MIXES:
             plants.append(Plant(name, nominal, MIXES[name], nominal.load_model(), nominal.model_error(),
                                 ['uniform', 'parabolic']))
@@ -155,7 +182,7 @@ def make_plants(names, tmp: Path) -> list[Plant]:
     return plants
 
 
-ALL_PLANTS = ['nominal', 'radius 0.20', 'unequal curves', '2 fans off', '4x4 wall', *MIXES]
+ALL_PLANTS = ['nominal', 'radius 0.20', 'unequal curves', '2 fans off', '4x4 wall', *MIXES, *UNFAMILIAR]
 
 
 def zeta_star(plant: Plant, target_values, starts: int = 6, seed: int = 0):
@@ -238,17 +265,22 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
     loop = ShapingLoop(tunnel, plant.prior, target_values, rule, setup.shaping.make_estimator(),
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error)
-    out = {'mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [], 'mismatch': None}
+    out = {'mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [], 'mismatch': None,
+           'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):
         c0, s0 = time.thread_time(), tunnel.cpu
         rec = loop.iterate(update=i < iterations)
         out['cpu_s'].append(time.thread_time() - c0 - (tunnel.cpu - s0))
-        out['mse'].append(float(np.mean((sim.true_field(rec.pwm, kp) - target_values) ** 2)))
+        true = sim.true_field(rec.pwm, kp)
+        out['mse'].append(float(np.mean((true - target_values) ** 2)))
+        out['z'].extend(((rec.estimate.mean - true) / np.maximum(rec.estimate.std, 1e-12)).tolist())
+        out['relearned'] += bool(rec.info.get('relearned'))
         out['plate_s'].append(rec.plate_s)
         out['settle_s'].append(rec.settle_s)
         out['stop'].append(bool(rec.info.get('stop', False)))
         if 'warm_start' in rec.info:
             out['mismatch'] = bool(rec.info['warm_start']['check']['mismatch'])
+            out['restart'] = bool(rec.info['warm_start']['check'].get('restart'))
         on = setup.geometry.fans.enabled
         bad = (rec.pwm < setup.shaping.u_min - 1e-12) | (rec.pwm > setup.shaping.u_max + 1e-12)
         assert not np.any(bad & on), 'a command left the bounds'
@@ -289,6 +321,10 @@ def summarise(runs: list[dict], zs: float) -> dict:
         'cpu_ms_median': float(1000 * np.median(np.concatenate([r['cpu_s'] for r in runs]))),
         'stops': stops,
         'prediction_mismatch': [r['mismatch'] for r in runs],
+        'restarts': sum(bool(r['restart']) for r in runs),
+        'relearned': sum(r['relearned'] for r in runs),
+        'z_rms': float(np.sqrt(np.mean(np.square(np.concatenate([r['z'] for r in runs]))))),
+        'z_outside_2sigma': float(np.mean(np.abs(np.concatenate([r['z'] for r in runs])) > 2.0)),
         'ratio_per_seed': R.round(4).tolist(),
     }
 
@@ -350,6 +386,7 @@ def main(argv=None):
         zpath.parent.mkdir(parents=True, exist_ok=True)
         zpath.write_text(json.dumps(zcache, indent=1))
     print_tables(rows, seeds, args.iterations)
+    print_warm_checks(rows)
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     meta = {'seeds': seeds, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
@@ -420,6 +457,38 @@ def print_tables(rows, seeds, iterations):
         print(f"{row['case']:44s} k=1 {k1:.3f} {'ok' if k1 <= 1.05 else 'MISSED'}; plate "
               f"{100 * share:.0f} % {'ok' if share <= 0.25 else 'MISSED'}; vs paper at worst "
               f"{worse:.3f} {'ok' if worse <= 1.02 else 'MISSED'}")
+
+
+def print_warm_checks(rows):
+    """The shipped default against the flat start (every fan at 0.5, the same rule): never
+    more than 2 % worse at any k >= 2; within 5 % by k = 2 wherever the flat start is by k = 4;
+    where the prior is right (the flat start needs no restart and the warm start is within 5 %
+    at k = 0) within 5 % from k = 0 and 3 % from k = 2. Then the field estimate's calibration:
+    z = (estimate - true field) / std at the key points, its RMS and the share outside 2 sigma."""
+    print('\nShipped default (warm start) against the flat start, medians over seeds: worst '
+          'shipped/flat at k >= 2; k where each first reaches 1.05; restarts; relearning; z RMS, '
+          'share of key points outside 2 sigma (shipped)\n')
+    print('| case | worst shipped/flat, k >= 2 | shipped k to 1.05 | flat k to 1.05 | restarts | '
+          'relearned | z RMS | outside 2 sigma |')
+    print('|---|---|---|---|---|---|---|---|')
+    for row in rows:
+        m, f = row['methods'].get(SHIPPED), row['methods'].get('flat')
+        if m is None:
+            continue
+        r = np.asarray(m['median_ratio'])
+        k_m = first_within(r)
+        if f is not None:
+            q = np.asarray(f['median_ratio'])
+            worst = float(np.max(r[2:] / q[2:])) if len(r) > 2 else float('nan')
+            k_f = first_within(q)
+            verdict = 'ok' if worst <= 1.02 else 'MISSED'
+            if k_f is not None and k_f <= 4 and (k_m is None or k_m > 2):
+                verdict += ', 1.05 by k=2 MISSED'
+            flat = f'{worst:.3f} {verdict} | {k_m} | {k_f}'
+        else:
+            flat = f'- | {k_m} | -'
+        print(f"| {row['case']} | {flat} | {m['restarts']} | {m['relearned']} | "
+              f"{m['z_rms']:.2f} | {100 * m['z_outside_2sigma']:.1f} % |")
 
 
 if __name__ == '__main__':

@@ -174,7 +174,7 @@ class AdaptiveUpdate:
         if relearn is not None:
             base_from = fit_from = len(maps) - 1
         restarted = relearn is not None or (bool(history) and base_from == len(maps) - 1
-                                             and dict(history[-1].info).get('restart_next'))
+                                             and 'restart_next' in dict(history[-1].info))
 
         # -- the base: the best map so far (ties go to the latest) ----------------------------
         b = int(len(maps) - 1 - np.argmin(errors[base_from:][::-1]))

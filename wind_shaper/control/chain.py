@@ -35,9 +35,9 @@ def chain_start(infos: Sequence[dict]) -> tuple[int, int]:
     maps carry ``infos`` (oldest first; the newest map's info may be empty)."""
     base_from = fit_from = 0
     for i, info in enumerate(infos):
-        if info.get('relearned'):
+        if 'relearned' in info:
             base_from = fit_from = i
-        if info.get('restart_next'):
+        if 'restart_next' in info:
             base_from = i + 1
     return min(base_from, len(infos) - 1), min(fit_from, len(infos) - 1)
 
