@@ -245,7 +245,11 @@ class ShapingRun:
     def set_model(self, text: str, source: str):
         """Swap the prior for the model file ``text`` (kept in the run folder); the old one stays
         if it is refused (ConfigError)."""
-        model = self.model_from_text(text, source)
+        return self.adopt_model(text, self.model_from_text(text, source))
+
+    def adopt_model(self, text: str, model):
+        """Make ``model`` (built from the model file ``text`` by ``model_from_text``) the prior,
+        keeping the text in the run folder."""
         self.store.save_model_text(text)
         self.model = model
         return model
