@@ -85,6 +85,12 @@ def check_design(names, commands, labels, fans: FanArray, u_min: float, u_max: f
     commands = np.asarray(commands, dtype=float)
     if commands.ndim != 2 or len(commands) == 0:
         raise DesignError(f'{source}: the design has no sweeps; give at least one row of commands')
+    if commands.shape[1] != len(names):
+        raise DesignError(f'{source}: {commands.shape[1]} commands per sweep for {len(names)} fans; '
+                          f'give one command per fan')
+    if len(labels) != len(commands):
+        raise DesignError(f'{source}: {len(labels)} labels for {len(commands)} sweeps; give one '
+                          f'per sweep')
     want = list(fans.names)
     missing, unknown = sorted(set(want) - set(names)), sorted(set(names) - set(want))
     if missing or unknown or len(names) != len(set(names)):

@@ -114,6 +114,9 @@ class CollectService:
         self.node.hold(U)
         await self.node.command_fans(U)
 
+    async def compute(self, fn, *args, **kwargs):
+        return await self.node.compute(fn, *args, **kwargs)
+
     async def begin_sweep(self) -> None:
         await self.node.begin_sweep()
 

@@ -290,6 +290,10 @@ class CoordinatorNode(Node):
     def check_boundary(self) -> None:
         self._waits.check()
 
+    async def compute(self, fn, *args, **kwargs):
+        """``fn``'s result, computed in a worker thread while the executor goes on."""
+        return await in_thread(self, lambda: fn(*args, **kwargs), name='wind_shaper-compute')
+
     async def command_fans(self, U: np.ndarray) -> None:
         p = self.params
 
