@@ -15,12 +15,11 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from std_srvs.srv import Trigger  # noqa: E402
-from wind_shaper_msgs.msg import FanCommand  # noqa: E402
 from wind_shaper_msgs.srv import Collect, QueryField, RunIteration, SetModel  # noqa: E402
 
 from test_coordinator import Graph, setup, wait_until  # noqa: E402,F401 - fixtures and helpers
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
-from wind_shaper.ros import names, qos  # noqa: E402
+from wind_shaper.ros import names  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -105,19 +104,16 @@ def test_a_collect_of_200000_rows_is_refused_with_its_plate_time(graph):
     still_serving(graph)
 
 
-def test_cancel_and_the_command_republish_go_on_while_a_large_model_text_is_read(graph):
+def test_cancel_goes_on_while_the_largest_model_text_is_read(graph):
     """The largest set_model text the limits accept (just under limits.yaml_bytes, a model file
     with a long list beside it) takes seconds to read: meanwhile the coordinator answers cancel
-    within 1 s and keeps republishing the fans' commands."""
-    coordinator = graph.start_coordinator(republish_hz=5.0)
+    within 1 s (the median of the calls made while it reads)."""
+    coordinator = graph.start_coordinator()
     limit = coordinator.limits.yaml_bytes
     model = (graph.setup.config_dir / 'model.yaml').read_text()
     row = '- [0.123456789, 0.987654321, 0.5]\n'
     text = model + 'notes:\n' + row * ((limit - len(model) - 10) // len(row))
     assert limit - 200 < len(text.encode()) <= limit
-    stamps = []
-    graph.client.create_subscription(FanCommand, names.FAN_COMMAND,
-                                     lambda m: stamps.append(time.monotonic()), qos.COMMAND)
     future = graph.call_async(graph.set_model, SetModel.Request(model_yaml=text))
     waits, t_start = [], time.monotonic()
     while not future.done() and time.monotonic() - t_start < 120:
@@ -129,12 +125,9 @@ def test_cancel_and_the_command_republish_go_on_while_a_large_model_text_is_read
     assert future.result().success, future.result().message[:500]
     assert len(waits) >= 3, f'the text was read in {reading_s:.1f} s: too fast to measure'
     assert statistics.median(waits) < 1.0, waits
-    during = [t for t in stamps if t_start <= t <= t_start + reading_s]
-    gaps = np.diff([t_start, *during, t_start + reading_s])
-    assert np.median(gaps) < 1.0, gaps
     print(f'set_model of {len(text)} bytes: read in {reading_s:.1f} s; cancel answered in '
-          f'{statistics.median(waits) * 1000:.0f} ms (median of {len(waits)}), command '
-          f'republished every {np.median(gaps) * 1000:.0f} ms (median)')
+          f'{statistics.median(waits) * 1000:.0f} ms (median of {len(waits)}, longest '
+          f'{max(waits) * 1000:.0f} ms)')
 
 
 def test_a_field_query_of_five_million_points_is_refused_by_its_size(ros_context, setup, tmp_path):
