@@ -35,6 +35,7 @@ from typing import Callable, Iterable, Mapping, Sequence, TextIO
 import yaml
 
 from .core.errors import WindShaperError
+from .core.safe_yaml import read_yaml_file
 
 __all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'Stopped',
            'StopSignals',
@@ -107,11 +108,23 @@ def _coerce(value, like):
 
 def _declared(params_file: Path, node: str) -> dict[str, object]:
     try:
-        doc = yaml.safe_load(params_file.read_text()) or {}
-        return dict((doc.get(node) or {}).get('ros__parameters') or {})
+        doc = read_yaml_file(params_file) or {}
+        return _flat(dict((doc.get(node) or {}).get('ros__parameters') or {}))
     except (OSError, yaml.YAMLError, AttributeError) as exc:
         raise GraphError(f'{params_file} is not a readable node parameter file ({exc}); it must '
                          f'hold "{node}: {{ros__parameters: {{...}}}}"') from None
+
+
+def _flat(params: Mapping, prefix: str = '') -> dict[str, object]:
+    """Nested parameter sections as ROS names them: ``{limits: {fans: 64}}`` ->
+    ``{'limits.fans': 64}``."""
+    out: dict[str, object] = {}
+    for key, value in params.items():
+        if isinstance(value, Mapping):
+            out.update(_flat(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
 
 
 def plan_graph(nodes: Sequence[str], config_dir: Path, *, fallback_dir: Path | None = None,

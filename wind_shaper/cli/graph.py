@@ -19,6 +19,8 @@ from pathlib import Path
 
 import yaml
 
+from ..core.safe_yaml import load_yaml
+
 #: The coordinator parameter that names the run folder (``--run-name``).
 RUN_NAME_PARAM = 'run_name'
 
@@ -32,7 +34,7 @@ def _setting(text: str) -> tuple[str, str, object]:
         raise argparse.ArgumentTypeError(f'{text!r}: write NODE.PARAM=VALUE, e.g. '
                                          f'coordinator.sweep_duration_s=3')
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ''
+        value = load_yaml(raw, 'the value') if raw.strip() else ''
     except yaml.YAMLError:
         value = raw
     return node, name, raw if value is None else value

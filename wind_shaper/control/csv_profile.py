@@ -6,12 +6,15 @@ tunnel axis); force [N], the vertical force on a 20 cm x 20 cm plate.
 """
 
 import csv
+import io
 import math
 from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import TargetError
+from ..core.errors import LimitError, TargetError
+from ..core.limits import DEFAULT_LIMITS
+from ..core.safe_yaml import read_text_file
 from .profiles import Target, _as_points, _finite_float, _point_text
 
 __all__ = [
@@ -46,11 +49,11 @@ def _nearest(queries, references, exclude_self=False):
 def _read_csv(path):
     """Rows of a target CSV as (points (M, 2) [m], forces (M,) [N], line numbers (M,))."""
     try:
-        with open(path, newline='', encoding='utf-8-sig') as stream:
-            lines = list(csv.reader(stream))
+        text = read_text_file(path, limits=DEFAULT_LIMITS).removeprefix('\ufeff')
+        lines = list(csv.reader(io.StringIO(text, newline='')))
     except FileNotFoundError:
         raise TargetError(f'target CSV {str(path)!r} does not exist: {_TEMPLATE_HINT}') from None
-    except (OSError, UnicodeDecodeError, csv.Error) as error:
+    except (OSError, LimitError, csv.Error) as error:
         raise TargetError(f'target CSV {str(path)!r} cannot be read: {error}') from None
     numbered = [(number, line) for number, line in enumerate(lines, start=1)
                 if any(cell.strip() for cell in line)]

@@ -148,7 +148,7 @@ async def run_experiment(exp: Experiment, ports: ExperimentPorts, *, max_sweeps:
                      if sweep is not None and len(sweep) else 0.0)
             info = {'coverage': share, 'attempts': attempt, 'timestamps': dict(stamps)}
             if answer.success:
-                exp.store.write_sweep(i, sweep, info)
+                await ports.compute(exp.store.write_sweep, i, sweep, info)
                 results.append(RowResult(i, label, STORED, share, len(sweep), attempt))
                 ports.row_done(i, STORED, sweep, share)
                 break
@@ -158,7 +158,7 @@ async def run_experiment(exp: Experiment, ports: ExperimentPorts, *, max_sweeps:
                                        f'check the force sensor and motion-capture streams, then '
                                        f'call collect again (the stored sweeps stay)')
             if attempt == max_sweeps:
-                exp.store.write_flagged(i, sweep, {**info, 'message': answer.message})
+                await ports.compute(exp.store.write_flagged, i, sweep, {**info, 'message': answer.message})
                 results.append(RowResult(i, label, FLAGGED, share, 0 if sweep is None else len(sweep),
                                          attempt, answer.message))
                 ports.warn(f'{where} flagged for a re-sweep after {attempt} sweep(s): '

@@ -91,6 +91,10 @@ class RigPorts(Protocol):
         """Ask the estimator for the field from everything collected since begin_sweep (a
         region sweep: only ``plan.needed`` key points must have been passed)."""
 
+    async def compute(self, fn: Callable, *args, **kwargs):
+        """``fn(*args, **kwargs)``'s result: a node runs it off its executor (fitting and
+        writing the run folder take long enough to hold up a cancel or the status)."""
+
 
 class FanWatch:
     """The fans' read-back during one sweep: the longest pause between reports [s] and the first
@@ -245,7 +249,11 @@ class ShapingRun:
     def set_model(self, text: str, source: str):
         """Swap the prior for the model file ``text`` (kept in the run folder); the old one stays
         if it is refused (ConfigError)."""
-        model = self.model_from_text(text, source)
+        return self.adopt_model(text, self.model_from_text(text, source))
+
+    def adopt_model(self, text: str, model):
+        """Make ``model`` (built from the model file ``text`` by ``model_from_text``) the prior,
+        keeping the text in the run folder."""
         self.store.save_model_text(text)
         self.model = model
         return model
@@ -368,7 +376,7 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
     # has too few samples, and keeps collecting; sweep again at the same commands and estimate
     # on all of it. With region sweeps on, only the region the last step changed is swept and
     # the rest carried over (control.region).
-    plan = run.region_plan(U, rule)
+    plan = await ports.compute(run.region_plan, U, rule)
     await ports.begin_sweep()
     stamps['sweep_started'] = clock()
     for attempt in range(1, max_sweeps + 1):
@@ -395,7 +403,7 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
 
     # 4. updating
     ports.set_state(UPDATING, f'iteration {k}: updating the commands')
-    return run.complete(k, U, rule, answer, stamps, region=region)
+    return await ports.compute(run.complete, k, U, rule, answer, stamps, region=region)
 
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',

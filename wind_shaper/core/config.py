@@ -14,6 +14,7 @@ from typing import Mapping
 import yaml
 
 from .errors import ConfigError
+from .safe_yaml import read_yaml_file
 from .geometry import TunnelGeometry
 
 
@@ -32,7 +33,7 @@ def default_config_dir() -> Path:
 def read_yaml(path) -> dict:
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = read_yaml_file(path)
     except FileNotFoundError:
         raise ConfigError(f'config file {path} does not exist') from None
     except (OSError, yaml.YAMLError) as exc:

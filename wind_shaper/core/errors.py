@@ -27,3 +27,7 @@ class FrameError(WindShaperError, ValueError):
 
 class RunFolderError(WindShaperError):
     """A run folder cannot be created, reopened or written (another tunnel, bad or missing files)."""
+
+
+class LimitError(WindShaperError, ValueError):
+    """An input is larger or deeper than a bound of ``core.limits.Limits``; nothing was parsed."""

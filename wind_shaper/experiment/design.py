@@ -18,6 +18,7 @@ finite number within [u_min, u_max] or exactly 0 (off), disabled fans at 0. A ba
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +26,8 @@ import numpy as np
 import yaml
 
 from ..core.errors import WindShaperError
+from ..core.limits import excerpt
+from ..core.safe_yaml import read_text_file, read_yaml_file
 from ..core.geometry import FanArray
 
 __all__ = ['Design', 'DesignError', 'design_commands', 'check_design', 'make_design',
@@ -82,6 +85,12 @@ def check_design(names, commands, labels, fans: FanArray, u_min: float, u_max: f
     commands = np.asarray(commands, dtype=float)
     if commands.ndim != 2 or len(commands) == 0:
         raise DesignError(f'{source}: the design has no sweeps; give at least one row of commands')
+    if commands.shape[1] != len(names):
+        raise DesignError(f'{source}: {commands.shape[1]} commands per sweep for {len(names)} fans; '
+                          f'give one command per fan')
+    if len(labels) != len(commands):
+        raise DesignError(f'{source}: {len(labels)} labels for {len(commands)} sweeps; give one '
+                          f'per sweep')
     want = list(fans.names)
     missing, unknown = sorted(set(want) - set(names)), sorted(set(names) - set(want))
     if missing or unknown or len(names) != len(set(names)):
@@ -108,10 +117,13 @@ def check_design(names, commands, labels, fans: FanArray, u_min: float, u_max: f
 
 def _read_csv(path: Path):
     try:
-        with open(path, newline='', encoding='utf-8') as stream:
-            rows = [r for r in csv.reader(stream) if r and any(c.strip() for c in r)]
+        text = read_text_file(path)
+        rows = [r for r in csv.reader(io.StringIO(text, newline=''))
+                if r and any(c.strip() for c in r)]
     except OSError as exc:
         raise DesignError(f'cannot read the design {path}: {exc.strerror or exc}') from None
+    except (WindShaperError, csv.Error) as exc:
+        raise DesignError(f'cannot read the design {path}: {exc}') from None
     if not rows:
         raise DesignError(f'{path}: empty; write a header (label, then the fan names) and one row per sweep')
     header = [c.strip() for c in rows[0]]
@@ -125,14 +137,15 @@ def _read_csv(path: Path):
         try:
             commands.append([float(c) for c in cells])
         except ValueError:
-            raise DesignError(f'{path}, line {k}: {cells} holds something that is not a number') from None
+            raise DesignError(f'{path}, line {k}: {excerpt(", ".join(cells))} holds something that '
+                              f'is not a number; write fractions 0..1') from None
         labels.append(row[0].strip() if has_label else f'sweep {k - 1}')
     return names, np.array(commands, dtype=float).reshape(len(commands), len(names)), labels
 
 
 def _read_yaml(path: Path):
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = read_yaml_file(path)
     except (OSError, yaml.YAMLError) as exc:
         raise DesignError(f'cannot read the design {path}: {exc}') from None
     sweeps = doc.get('design') if isinstance(doc, dict) else None

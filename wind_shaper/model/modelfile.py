@@ -5,7 +5,8 @@ from pathlib import Path
 
 import yaml
 
-from ..core.errors import ModelFileError
+from ..core.errors import LimitError, ModelFileError
+from ..core.safe_yaml import load_yaml, read_text_file, read_yaml_file
 from ..core.geometry import FanArray
 from .terms import Term, term_from_dict
 
@@ -29,7 +30,7 @@ def load_model(path, fans: FanArray) -> Term:
     """Read a model file written by ``save_model`` and build it for ``fans``."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_text_file(path)
     except FileNotFoundError:
         raise ModelFileError(f'model file {path} does not exist: fit one with `wind-shaper '
                              f'calibrate --data EXPERIMENT --out {path}` (sweeps from `wind-shaper '
@@ -37,6 +38,8 @@ def load_model(path, fans: FanArray) -> Term:
                              f'--out {path}`') from None
     except OSError as exc:
         raise ModelFileError(f'model file {path} cannot be read ({exc})') from None
+    except LimitError as exc:
+        raise ModelFileError(f'model file {path} cannot be read: {exc}') from None
     return model_from_text(text, fans, source=str(path))
 
 
@@ -44,7 +47,7 @@ def model_error(path) -> float:
     """The prior's error per key point [N] as its calibration measured it: the held-out RMSE
     (``heldout_rmse_N``), else the fit's own (``rmse_N``); NaN when the file says neither."""
     try:
-        doc = yaml.safe_load(Path(path).read_text())
+        doc = read_yaml_file(path)
     except (OSError, yaml.YAMLError):
         return float('nan')
     if not isinstance(doc, dict):
@@ -60,10 +63,10 @@ def model_from_text(text: str, fans: FanArray, source: str = 'model text') -> Te
     """Build a model from the text of a model file (e.g. one sent over a service).
     ``source`` names it in error messages."""
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text, source)
     except yaml.YAMLError as exc:
-        raise ModelFileError(f'{source} is not readable YAML ({exc}); restore it or fit a new '
-                             f'one with `wind-shaper calibrate`') from None
+        raise ModelFileError(f'{exc}; restore it or fit a new one with `wind-shaper '
+                             f'calibrate`') from None
     if not isinstance(doc, dict) or doc.get('wind_shaper_model') != FORMAT_VERSION or 'model' not in doc:
         raise ModelFileError(f'{source} is not a wind_shaper model file (version {FORMAT_VERSION} '
                              f'with a "model" section); fit one with `wind-shaper calibrate`')

@@ -19,6 +19,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from ..core.errors import ConfigError, ModelFileError
+from ..core.limits import excerpt
 from ..core.geometry import FanArray
 from .plugins import HOW_TO_LOAD, load_plugins
 
@@ -294,9 +295,11 @@ def register_term(cls: type) -> type:
 def term_from_dict(spec: Mapping, fans: FanArray) -> Term:
     """Build a term (tree) from its ``to_dict`` form."""
     if not isinstance(spec, Mapping) or 'kind' not in spec:
-        raise ModelFileError(f'a model term must be a mapping with a "kind"; got {spec!r}')
+        raise ModelFileError(f'a model term must be a mapping with a "kind"; got {excerpt(spec)}')
     spec = dict(spec)
     kind = spec.pop('kind')
+    if not isinstance(kind, str):
+        raise ModelFileError(f'a model term\'s kind must be a name; got {excerpt(kind)}')
     if kind in ('sum', 'product'):
         terms = [term_from_dict(t, fans) for t in spec.get('terms', [])]
         if len(terms) < 2:
@@ -313,15 +316,17 @@ def term_from_dict(spec: Mapping, fans: FanArray) -> Term:
         try:
             load_plugins(env=True)
         except ConfigError as exc:
-            raise ModelFileError(f'model term kind {kind!r} is not known yet and {exc}') from None
+            raise ModelFileError(f'model term kind {excerpt(kind)} is not known yet and {exc}') from None
         cls = TERMS.get(kind)
     if cls is None:
-        raise ModelFileError(f'unknown model term kind {kind!r} (known kinds: {sorted(TERMS)}); if it is '
+        raise ModelFileError(f'unknown model term kind {excerpt(kind)} (known kinds: {sorted(TERMS)}); if it is '
                              f'a term of your own, {HOW_TO_LOAD}')
     try:
         return cls(fans, **spec)
-    except (TypeError, ValueError) as exc:  # ConfigError is a ValueError too
-        raise ModelFileError(f'cannot build term {kind!r} from {spec}: {exc}; every parameter '
+    except (TypeError, ValueError, IndexError, KeyError, AttributeError, OverflowError,
+            ArithmeticError) as exc:  # ConfigError is a ValueError too
+        raise ModelFileError(f'cannot build term {kind!r} from {excerpt(spec, 200)}: '
+                             f'{excerpt(str(exc), 200, quote=False)}; every parameter '
                              f'must be a number or a list of numbers') from None
 
 

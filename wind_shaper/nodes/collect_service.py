@@ -22,10 +22,13 @@ from wind_shaper_msgs.srv import Collect
 
 from ..coordination import Experiment, IterationStopped, run_experiment
 from ..coordination.experiment import CHECKING, COMMANDING, SWEEPING
+from ..coordination.requests import check_collect_request
 from ..core.errors import WindShaperError
+from ..core.limits import duration_text, excerpt
 from ..estimation import Coverage
 from ..ros import names, qos
 from ..ros.convert import sweep_to_msg
+from ..ros.waiting import in_thread
 from ..storage import FLAGGED, STORED
 
 #: Share of a row's progress at the start of each state.
@@ -111,6 +114,9 @@ class CollectService:
         self.node.hold(U)
         await self.node.command_fans(U)
 
+    async def compute(self, fn, *args, **kwargs):
+        return await self.node.compute(fn, *args, **kwargs)
+
     async def begin_sweep(self) -> None:
         await self.node.begin_sweep()
 
@@ -135,53 +141,77 @@ class CollectService:
     # -- the service --------------------------------------------------------------------------------
     async def _handle(self, request: Collect.Request, response: Collect.Response):
         node = self.node
+        sweep_s = request.sweep_duration_s if request.sweep_duration_s > 0 else node.params.sweep_duration_s
+        try:   # sizes and plate time first: nothing of a refused request is parsed or kept
+            plate_s = check_collect_request(node.limits, request.name, request.design,
+                                            request.fan_names, request.commands, request.labels,
+                                            sweep_s + node.params.settle_s)
+        except WindShaperError as exc:
+            return self._refuse(response, str(exc))
         with node.lock:
             busy = node.busy()
             if busy:
                 response.success = False
                 response.message = busy
                 return response
-            try:
-                exp = Experiment.open(node.setup, node.params.run_root, request.name,
-                                      list(request.fan_names), list(request.commands),
-                                      list(request.labels), request.design,
-                                      {'coordinator': node.snapshot()})
-            except WindShaperError as exc:
-                response.success = False
-                response.message = f'experiment refused, no fan was commanded: {exc}'
-                node.get_logger().warning(response.message)
-                return response
+            rows = max(len(request.commands) // max(len(request.fan_names), 1), 1)
             node.begin_procedure(request.sweep_duration_s,
                                  request.timeout_s if request.timeout_s > 0 else
-                                 max(len(exp.pending()), 1) * node.params.iteration_timeout_s)
-            self._exp, self._name = exp, request.name
+                                 rows * node.params.iteration_timeout_s)
+            self._exp, self._name = None, request.name
             self._row, self._attempt, self._samples = -1, 0, 0
-            self._coverage = Coverage(exp.store.plan.key_points, exp.radius)
+            self._coverage = None
             self.active = True
-        outcome, text = ExperimentStatus.STATE_DONE, ''
+        outcome, text, exp = ExperimentStatus.STATE_DONE, '', None
         try:
+            try:   # checking the table and writing its folder take seconds for a large one
+                exp = await in_thread(node, Experiment.open, node.setup, node.params.run_root,
+                                      request.name, list(request.fan_names), list(request.commands),
+                                      list(request.labels), request.design,
+                                      {'coordinator': node.snapshot()}, name='wind_shaper-collect')
+            except Exception as exc:  # noqa: BLE001 - any refusal is answered, never raised
+                return self._refuse(response, _why(exc))
+            self._exp = exp
+            self._coverage = Coverage(exp.store.plan.key_points, exp.radius)
             node.get_logger().info(f'experiment {request.name}: {len(exp)} sweeps from '
-                                   f'{exp.design.source!r}, {len(exp.pending())} to sweep, in {exp.folder}')
+                                   f'{exp.design.source!r}, {len(exp.pending())} to sweep (about '
+                                   f'{duration_text(plate_s)} of plate time), in {exp.folder}')
+            node.check_boundary()
             await run_experiment(exp, self, max_sweeps=node.params.max_sweeps)
         except IterationStopped as stop:
             outcome, text = stop.state, f'experiment {stop.state}: {stop}; '
         except Exception as exc:  # noqa: BLE001 - the service must answer, and say why
             node.get_logger().error(f'experiment {request.name} failed unexpectedly: {exc!r}')
-            outcome, text = ExperimentStatus.STATE_FAILED, f'unexpected error: {exc!r}; '
+            outcome, text = ExperimentStatus.STATE_FAILED, f'unexpected error: {_why(exc)}; '
         finally:
-            node.hold(np.zeros(len(node.fan_names)))   # off, whatever happened
+            if exp is not None:
+                node.hold(np.zeros(len(node.fan_names)))   # off, whatever happened
             node.end_procedure()
             self.active = False
-        states = exp.states()
+        # reading every row's record back is disk work: off the executor too
+        states, coverage, summary = await in_thread(
+            node, lambda: (exp.states(), exp.store.coverage(), exp.summary()))
         response.run_folder = str(exp.folder)
         response.labels = list(exp.design.labels)
         response.outcome = states
-        response.coverage = [float(c) if math.isfinite(c) else math.nan for c in exp.store.coverage()]
+        response.coverage = [float(c) if math.isfinite(c) else math.nan for c in coverage]
         response.stored = states.count(STORED)
         response.success = outcome == ExperimentStatus.STATE_DONE and response.stored == len(exp)
-        response.message = text + exp.summary() + '; the fans are off'
+        response.message = text + summary + '; the fans are off'
         self.set_state(outcome, response.message)
         return response
+
+    def _refuse(self, response: Collect.Response, why: str) -> Collect.Response:
+        response.success = False
+        response.message = f'experiment refused, no fan was commanded: {why}'
+        self.node.get_logger().warning(response.message)
+        return response
+
+
+def _why(exc: Exception) -> str:
+    if isinstance(exc, WindShaperError):
+        return str(exc)
+    return f'unexpected {type(exc).__name__}: {excerpt(str(exc), quote=False)}'
 
 
 __all__ = ['CollectService']

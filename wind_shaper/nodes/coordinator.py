@@ -44,14 +44,17 @@ from ..app import Setup
 from ..coordination import FanWatch, FieldAnswer, IterationStopped, ShapingRun, run_iteration
 from ..control.region import RegionPlan
 from ..coordination.iteration import PROGRESS
+from ..coordination.requests import check_model_request, check_target_request
 from ..core.errors import ConfigError, WindShaperError
+from ..core.limits import Limits, excerpt
+from ..core.safe_yaml import read_text_file
 from ..estimation import coverage_share
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import estimate_from_msg, fan_command, pwm_from_command, sweep_from_msg
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
-from ..ros.waiting import Waits
+from ..ros.waiting import Waits, in_thread
 from .collect_service import CollectService
 from .hold_service import HoldService
 
@@ -114,6 +117,7 @@ class CoordinatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(names.COORDINATOR, **kwargs)
         self.params = p = declare_parameters(self, CoordinatorParams)
+        self.limits = declare_parameters(self, Limits, prefix='limits.')
         self.setup = Setup.load(p.config_dir or None)
         # a graph in a namespace keeps its own run folder: runs/<namespace>/<run_name>
         run_root = Path(p.run_root) / names.folder_part(self.get_namespace())
@@ -138,6 +142,8 @@ class CoordinatorNode(Node):
         self._status_k = run_.last_completed  # the iteration the status is about
         self._fan_watch: FanWatch | None = None
         self._applied_at: float | None = None   # time.monotonic() of the last read-back
+        self._model_check = False   # a set_model request is being read (one at a time)
+        self._closing = False       # destroy_node has begun: publish nothing more
 
         self.callback_group = self._cb = ReentrantCallbackGroup()
         self._waits = Waits(self, self._cb, IterationStopped, describe=lambda: self._state,
@@ -215,8 +221,15 @@ class CoordinatorNode(Node):
 
     def _publish_command(self) -> None:
         U = self.command_in_force()
-        if U is not None:
+        if U is not None and not self._closing:
             self._cmd_pub.publish(fan_command(self._fan_names, U, self.get_clock().now().to_msg()))
+
+    def destroy_node(self):
+        # a procedure still awaiting something ends at its next step, and publishes nothing
+        # into the destroyed node on its way out
+        self._closing = True
+        self._waits.cancel()
+        super().destroy_node()
 
     # -- status ---------------------------------------------------------------------------------------
     def set_state(self, state: str, message: str = '') -> None:
@@ -276,6 +289,10 @@ class CoordinatorNode(Node):
     # -- the rig's ports for coordination.run_iteration -------------------------------------------------
     def check_boundary(self) -> None:
         self._waits.check()
+
+    async def compute(self, fn, *args, **kwargs):
+        """``fn``'s result, computed in a worker thread while the executor goes on."""
+        return await in_thread(self, lambda: fn(*args, **kwargs), name='wind_shaper-compute')
 
     async def command_fans(self, U: np.ndarray) -> None:
         p = self.params
@@ -488,20 +505,25 @@ class CoordinatorNode(Node):
         response.fan_names = self._fan_names
         response.run_folder = str(run_.store.folder)
         response.rmse_before = response.rmse_predicted_after = response.max_std = math.nan
+        response.iteration = run_.k
+        with self._lock:
+            busy = self.busy()
+        if busy:
+            response.success, response.message = False, busy
+            return response
+        try:
+            check_target_request(self.limits, request.target)
+            # a target may read a CSV file or build an expression: off the executor
+            target, rule = await in_thread(self, run_.prepare, request.target, request.step_gain)
+        except Exception as exc:  # noqa: BLE001 - any refusal is answered, never raised
+            response.success = False
+            response.message = (f'refused, nothing changed (the run keeps target '
+                                f'{run_.target_spec!r}): {_why(exc)}')
+            return response
         with self._lock:
             busy = self.busy()
             if busy:
-                response.success = False
-                response.iteration = run_.k
-                response.message = busy
-                return response
-            try:
-                target, rule = run_.prepare(request.target, request.step_gain)
-            except WindShaperError as exc:
-                response.success = False
-                response.iteration = run_.k
-                response.message = (f'refused, nothing changed (the run keeps target '
-                                    f'{run_.target_spec!r}): {exc}')
+                response.success, response.message = False, busy
                 return response
             self.begin_procedure(0.0, request.timeout_s if request.timeout_s > 0
                                  else self.params.iteration_timeout_s)
@@ -640,29 +662,55 @@ class CoordinatorNode(Node):
         self.get_logger().info(response.message)
         return response
 
-    def _handle_set_model(self, request: SetModel.Request, response: SetModel.Response):
-        text, source = request.model_yaml, 'the model_yaml text'
-        try:
-            if not text.strip():
-                if not request.path:
-                    raise ConfigError('give a model file as model_yaml text or as a path')
-                source = request.path
-                try:
-                    text = Path(request.path).read_text()
-                except OSError as exc:
-                    raise ConfigError(f'cannot read {request.path}: {exc.strerror or exc}') from None
-            with self._lock:
-                model = self._run.set_model(text, source)
-        except WindShaperError as exc:
+    async def _handle_set_model(self, request: SetModel.Request, response: SetModel.Response):
+        """Read and check the model off the executor (a large text takes seconds), then swap it
+        in; one request at a time, every refusal answered with what was wrong."""
+        with self._lock:
+            busy, self._model_check = self._model_check, True
+        if busy:
             response.success = False
-            response.message = (f'model refused, the old one stays: {exc} (prior in use: '
-                                 f'{self._run.model!r})')
+            response.message = ('another set_model request is being checked: call again when it '
+                                'is answered')
+            return response
+        try:
+            check_model_request(self.limits, request.model_yaml, request.path)
+            text, source, model = await in_thread(self, self._read_model, request.model_yaml,
+                                                  request.path, name='wind_shaper-set_model')
+            with self._lock:
+                self._run.adopt_model(text, model)
+        except Exception as exc:  # noqa: BLE001 - any refusal is answered, never raised
+            response.success = False
+            response.message = (f'model refused, the old one stays: {_why(exc)} (prior in use: '
+                                f'{self._run.model!r})')
             self.get_logger().warning(response.message)
             return response
+        finally:
+            with self._lock:
+                self._model_check = False
         response.success = True
         response.message = f'prior set from {source}: {model!r}'
         self.get_logger().info(response.message)
         return response
+
+    def _read_model(self, text: str, path: str):
+        """(text, source, model) of a set_model request; runs in a worker thread."""
+        source = 'the model_yaml text'
+        if not text.strip():
+            if not path:
+                raise ConfigError('give a model file as model_yaml text or as a path')
+            source = path
+            try:
+                text = read_text_file(path, self.limits.yaml_bytes, self.limits)
+            except OSError as exc:
+                raise ConfigError(f'cannot read {path}: {exc.strerror or exc}') from None
+        return text, source, self._run.model_from_text(text, source)
+
+
+def _why(exc: Exception) -> str:
+    """A refusal's reason: a WindShaperError says it; anything else is named, shortly."""
+    if isinstance(exc, WindShaperError):
+        return str(exc)
+    return f'unexpected {type(exc).__name__}: {excerpt(str(exc), quote=False)}'
 
 
 def required(plan: RegionPlan | None) -> list[bool]:

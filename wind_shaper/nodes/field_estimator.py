@@ -40,6 +40,7 @@ from wind_shaper_msgs.srv import EstimateField, QueryField
 from ..app import Setup
 from ..estimation import SampleBuffer, align_sweep
 from ..core.errors import WindShaperError
+from ..core.limits import Limits
 from ..storage import SweepJournal
 from ..ros import diagnostics as diag
 from ..ros import names, qos
@@ -73,6 +74,7 @@ class FieldEstimatorNode(Node):
     def __init__(self, **kwargs):
         super().__init__(names.FIELD_ESTIMATOR, **kwargs)
         self.params = p = declare_parameters(self, FieldEstimatorParams)
+        self.limits = declare_parameters(self, Limits, prefix='limits.')
         setup = Setup.load(p.config_dir or None)
         self._key_points = setup.geometry.key_points
         self._fan_names = list(setup.geometry.fans.names)
@@ -259,6 +261,8 @@ class FieldEstimatorNode(Node):
         success false with the reason and changes nothing."""
         latest = self._latest
         try:
+            self.limits.count(request.x, self.limits.query_points, 'query_points', 'x')
+            self.limits.count(request.y, self.limits.query_points, 'query_points', 'y')
             if latest is None:
                 raise WindShaperError('no field has been estimated since this node started: run an '
                                       'iteration (wind-shaper iterate) first')
@@ -277,6 +281,7 @@ class FieldEstimatorNode(Node):
         return response
 
     def _request_pwm(self, request: EstimateField.Request) -> np.ndarray:
+        self.limits.names(request.fan_names, 'fan_names')
         if len(request.fan_names) != len(request.pwm):
             raise WindShaperError(f'the request names {len(request.fan_names)} fans but gives '
                                   f'{len(request.pwm)} PWM values: give one per fan')

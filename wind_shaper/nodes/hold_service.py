@@ -19,6 +19,7 @@ from wind_shaper_msgs.srv import HoldPoint, Place
 
 from ..coordination import IterationStopped
 from ..coordination.held import Stillness
+from ..coordination.requests import check_hold_request
 from ..core.errors import WindShaperError
 from ..experiment import check_design
 from ..ros import names
@@ -78,13 +79,14 @@ class HoldService:
                 response.success, response.message = False, busy
                 return response
             try:
+                check_hold_request(node.limits, request.fan_names, request.pwm)
                 b = node.setup.shaping.bounds
                 U = check_design(list(request.fan_names), np.array([request.pwm], dtype=float),
                                  ['this point'], node.setup.geometry.fans, b.u_min, b.u_max,
                                  'hold_point').commands[0]
                 if not (np.isfinite(request.x) and np.isfinite(request.y)):
                     raise WindShaperError(f'the point ({request.x}, {request.y}) is not finite')
-            except WindShaperError as exc:
+            except (WindShaperError, ValueError, IndexError) as exc:
                 response.success = False
                 response.message = f'point refused, no fan was commanded: {exc}'
                 return response

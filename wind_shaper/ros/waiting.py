@@ -164,3 +164,26 @@ class Waits:
 
 
 __all__ = ['Waits', 'RESEND_MIN_S']
+
+
+def in_thread(node, fn: Callable, *args, name: str = 'wind_shaper-work') -> Future:
+    """Run ``fn(*args)`` in a thread of its own and return a Future of its result (or of the
+    exception it raised) that a coroutine callback of ``node`` can await: parsing, writing a
+    large folder or fitting then never holds up the executor, so other services, timers and
+    topics (a cancel, the status, the command republish) go on meanwhile. The thread cannot be
+    stopped: a caller that stops waiting leaves it to finish and drops its result."""
+    future = Future()
+
+    def work():
+        try:
+            result = fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - handed to the awaiting coroutine
+            future.set_exception(exc)
+        else:
+            future.set_result(result)
+        executor = node.executor
+        if executor is not None:
+            executor.wake()
+
+    threading.Thread(target=work, name=name, daemon=True).start()
+    return future

@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import RunFolderError
+from ..core.safe_yaml import read_yaml_file
 from ..core.tunnel import Sweep
 from ..experiment.design import Design, write_design
 from .runstore import _atomic_write_text, _floats, _json, folder_in, load_sweep, save_sweep
@@ -65,7 +66,7 @@ class ExperimentPlan:
     @classmethod
     def from_yaml(cls, path: Path) -> 'ExperimentPlan':
         try:
-            doc = yaml.safe_load(path.read_text())
+            doc = read_yaml_file(path)
             if not isinstance(doc, dict) or doc.get('wind_shaper_experiment') != FORMAT_VERSION:
                 raise ValueError(f'not a version-{FORMAT_VERSION} experiment file')
             names = tuple(doc['fan_names'])

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import RunFolderError
+from ..core.safe_yaml import read_yaml_file
 from ..estimation import FieldEstimate
 from ..control import IterationRecord
 from ..core.tunnel import Sweep
@@ -115,7 +116,7 @@ class RunInfo:
     @classmethod
     def from_yaml(cls, path: Path) -> 'RunInfo':
         try:
-            doc = yaml.safe_load(path.read_text())
+            doc = read_yaml_file(path)
             if not isinstance(doc, dict) or doc.get('wind_shaper_run') != FORMAT_VERSION:
                 raise ValueError(f'not a version-{FORMAT_VERSION} run file')
             return cls(str(doc['target']), tuple(doc['fan_names']),

@@ -38,6 +38,9 @@ class SimPorts:
         self.sim.apply(U)
         await asyncio.sleep(0)
 
+    async def compute(self, fn, *args, **kwargs):
+        return fn(*args, **kwargs)
+
     async def begin_sweep(self):
         self.samples = []
 

@@ -1,0 +1,58 @@
+"""The bounds a coordinator request must meet before any of it is parsed (no ROS here).
+
+Each ``check_*`` takes the request's fields as plain Python values and a ``core.limits.Limits``
+and raises ``LimitError`` (what was too large, by how much, what to do; a short excerpt at most)
+or returns quietly. They look at sizes only: what the fields mean (a target, a model, a design)
+is checked afterwards by the code that parses them, within these sizes. A designed experiment
+also states its plate time here, and one above the budget is refused with that figure.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+from ..core.errors import LimitError
+from ..core.limits import Limits
+
+
+def check_model_request(limits: Limits, model_yaml: str, path: str) -> None:
+    """set_model: the YAML text (limits.yaml_bytes; the parser checks depth and anchors) and the
+    path (limits.text_chars)."""
+    if len(model_yaml) > limits.yaml_bytes:
+        raise LimitError(f'the model_yaml text has {len(model_yaml)} characters, more than the '
+                         f'{limits.yaml_bytes} bytes allowed (limits.yaml_bytes): no model file '
+                         f'is that large; check what was sent')
+    limits.text(path, 'the path')
+
+
+def check_target_request(limits: Limits, target: str) -> None:
+    """run_iteration: the target spec (limits.text_chars)."""
+    limits.text(target, 'the target')
+
+
+def check_collect_request(limits: Limits, name: str, design: str, fan_names: Sequence[str],
+                          commands: Sequence[float], labels: Sequence[str],
+                          per_row_s: float) -> float:
+    """collect: every field's size, then the plate time of the table: its rows (len(commands) /
+    len(fan_names)) times ``per_row_s`` [s] (a sweep and the settling before it). Returns the
+    plate time [s]; LimitError, stating it, when above limits.plate_budget_s or
+    limits.design_rows."""
+    limits.text(name, 'the experiment name', name=True)
+    limits.text(design, 'the design')
+    limits.names(fan_names, 'fan_names')
+    rows = -(-len(commands) // max(len(fan_names), 1))
+    limits.plate_time(rows, per_row_s, 'the design')
+    limits.count(commands, limits.design_rows * limits.fans, 'design_rows', 'commands')
+    limits.count(labels, limits.design_rows, 'design_rows', 'labels')
+    for label in labels:
+        limits.text(label, 'a label', name=True)
+    return rows * per_row_s
+
+
+def check_hold_request(limits: Limits, fan_names: Sequence[str], pwm: Sequence[float]) -> None:
+    """hold_point: as many names and commands as limits.fans at most."""
+    limits.names(fan_names, 'fan_names')
+    limits.count(pwm, limits.fans, 'fans', 'pwm')
+
+
+__all__ = ['check_collect_request', 'check_hold_request', 'check_model_request',
+           'check_target_request']
