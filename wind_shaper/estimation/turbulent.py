@@ -111,33 +111,41 @@ def check_bounds(bounds: Mapping | None) -> dict:
 
 
 def _squared_distances(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    sq = np.sum(A * A, 1)[:, None] + np.sum(B * B, 1)[None, :] - 2.0 * A @ B.T
+    """|a - b|^2 [m^2] between point sets A (..., n, 2) and B (..., m, 2)."""
+    sq = (np.sum(A * A, -1)[..., :, None] + np.sum(B * B, -1)[..., None, :]
+          - 2.0 * A @ np.swapaxes(B, -1, -2))
     return np.maximum(sq, 0.0, out=sq)
 
 
+def _diag(M: np.ndarray) -> np.ndarray:
+    """The writable diagonal(s) of M (..., n, n)."""
+    return np.einsum('...ii->...i', M)
+
+
 class _Design:
-    """What the likelihood needs of one sweep's samples, computed once: squared spatial
-    distances [m^2], time lags [s] and the centred forces [N]."""
+    """What the likelihood needs of samples, computed once: squared spatial distances [m^2],
+    time lags [s] and forces [N], for one set (X (n, 2), y (n,), t (n,)) or a stack of equal
+    runs (X (k, m, 2), ...)."""
 
     def __init__(self, X, y, t):
         self.X, self.y, self.t = X, y, t
         self.sq = _squared_distances(X, X)
-        self.lag = np.abs(t[:, None] - t[None, :])
-        self.n = len(y)
+        self.lag = np.abs(t[..., :, None] - t[..., None, :])
+        self.n = y.shape[-1]
 
     def noise_cov(self, p: TurbulenceParameters, level) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(N, s, T): the noise covariance [N^2], per-sample sd [N], time kernel exp(-lag/tau)."""
         s = p.noise_sd(level)
         T = np.exp(-self.lag / p.gust_time)
         R = p.gust_fraction * T
-        R[np.diag_indices(self.n)] = 1.0
-        return s[:, None] * R * s[None, :], s, T
+        _diag(R)[...] = 1.0
+        return s[..., :, None] * R * s[..., None, :], s, T
 
     def cov(self, p: TurbulenceParameters, level):
         E = np.exp(-self.sq / (2.0 * p.length_scale ** 2))
         N, s, T = self.noise_cov(p, level)
         K = p.signal_std ** 2 * E + N
-        K[np.diag_indices(self.n)] += 1e-10 * p.signal_std ** 2
+        _diag(K)[...] += 1e-10 * p.signal_std ** 2
         return K, E, s, T
 
 
@@ -148,56 +156,37 @@ def _cholesky(K):
     return L
 
 
-def _nll(x, blocks, r):
-    """Negative log (block) marginal likelihood without the constant, and its gradient in x:
-    the sum over ``blocks`` (``_Design`` of consecutive samples) of their own likelihoods."""
+def _nll(x, design: _Design, level, r):
+    """Negative log (composite) marginal likelihood without the constant, and its gradient in
+    x: the sum over the stacked runs of ``design`` (k, m) of their own likelihoods; level and
+    r (k, m) [N]: force levels and centred forces."""
     p = _from_vector(x)
-    value, grad = 0.0, np.zeros(len(x))
-    for design, level, rb in zip(*blocks, _split(r, blocks[0])):
-        v, g = _block_nll(p, design, level, rb)
-        if not np.isfinite(v):
-            return 1e25, np.zeros(len(x))
-        value, grad = value + v, grad + g
-    return value, grad
-
-
-def _split(r, designs):
-    out, i = [], 0
-    for d in designs:
-        out.append(r[i:i + d.n])
-        i += d.n
-    return out
-
-
-def _block_nll(p: TurbulenceParameters, design: '_Design', level, r):
+    K, E, s, T = design.cov(p, level)
     try:
-        K, E, s, T = design.cov(p, level)
-        L = _cholesky(K)
-    except LinAlgError:
-        return np.inf, None
-    alpha = cho_solve((L, True), r, check_finite=False)
-    Kinv, _ = lapack.dpotri(L, lower=1)
-    Kinv = Kinv + np.tril(Kinv, -1).T
-    value = 0.5 * r @ alpha + np.sum(np.log(np.diag(L)))
-    W = np.outer(alpha, alpha)
+        L = np.linalg.cholesky(K)
+    except np.linalg.LinAlgError:
+        return 1e25, np.zeros(len(x))
+    Kinv = np.linalg.inv(K)
+    alpha = np.einsum('kij,kj->ki', Kinv, r)
+    value = 0.5 * np.sum(r * alpha) + np.sum(np.log(_diag(L)))
+    W = alpha[:, :, None] * alpha[:, None, :]
     W -= Kinv                                   # 2 d(log likelihood) / dK
     W_E = W * E
     c = p.gust_fraction
-    diag = np.diag_indices(design.n)
     WT = W * T
-    WT[diag] = 0.0
-    WTs = WT @ s                                # sum_j W_ij T_ij s_j, off the diagonal
-    WRs = c * WTs + np.diag(W) * s              # R = c T off the diagonal, 1 on it
+    _diag(WT)[...] = 0.0
+    WTs = np.einsum('kij,kj->ki', WT, s)        # sum_j W_ij T_ij s_j, off the diagonal
+    WRs = c * WTs + _diag(W) * s                # R = c T off the diagonal, 1 on it
     d_abs = p.absolute ** 2 / s                 # ds / dlog(absolute)
     d_rel = (p.relative * level) ** 2 / s       # ds / dlog(relative)
     sf2 = p.signal_std ** 2
     g = np.array([
         sf2 * np.sum(W_E * design.sq) / p.length_scale ** 2,
         2.0 * sf2 * np.sum(W_E),
-        2.0 * d_abs @ WRs,
-        2.0 * d_rel @ WRs,
-        s @ WTs,
-        c * s @ ((WT * design.lag) @ s) / p.gust_time,
+        2.0 * np.sum(d_abs * WRs),
+        2.0 * np.sum(d_rel * WRs),
+        np.sum(s * WTs),
+        c * np.einsum('ki,kij,kj->', s, WT * design.lag, s) / p.gust_time,
     ])
     return value, -0.5 * g
 
@@ -215,21 +204,21 @@ def _vector_bounds(bounds: Mapping) -> np.ndarray:
     return np.array([np.log(bounds[k]) if k in _LOG else bounds[k] for k in _ORDER], dtype=float)
 
 
-def _blocks(X, y, t, block: int) -> list:
-    """The samples in time order cut into runs of about ``block`` (``_Design`` each); a short
-    tail joins the run before it."""
-    n = len(y)
+def _runs(n: int, block: int) -> list:
+    """Slices cutting n samples into runs of about ``block`` (one run for block 0)."""
     k = max(1, int(round(n / block))) if block > 0 else 1
     edges = np.linspace(0, n, k + 1).round().astype(int)
-    return [_Design(X[a:b], y[a:b], t[a:b]) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
 
 
-def local_level(blocks: list, p: TurbulenceParameters, mean: float) -> np.ndarray:
-    """The field's level at each sample [N], in the blocks' order: per block the posterior mean
-    of the model at ``p`` (noise sd of the sweep's mean force), kept >= 0 (turbulence is
-    relative to |F|). Blockwise, so it costs a few small solves, not one of the whole sweep."""
+def local_level(X, y, t, p: TurbulenceParameters, mean: float, block: int) -> np.ndarray:
+    """The field's level at each sample [N] (samples in time order): per run of ``block``
+    samples the posterior mean of the model at ``p`` (noise sd of the sweep's mean force), kept
+    >= 0 (turbulence is relative to |F|). Runwise, so it costs a few small solves, not one of
+    the whole sweep."""
     out = []
-    for d in blocks:
+    for run in _runs(len(y), block):
+        d = _Design(X[run], y[run], t[run])
         level = np.full(d.n, abs(mean))
         K, E, _, _ = d.cov(p, level)
         try:
@@ -244,14 +233,14 @@ def local_level(blocks: list, p: TurbulenceParameters, mean: float) -> np.ndarra
 
 def fit_turbulence(positions, forces, times, start: TurbulenceParameters = TurbulenceParameters(),
                    bounds: Mapping | None = None, *, block: int = 80, max_iter: int = 40,
-                   tolerance: float = 1e-6) -> tuple:
+                   tolerance: float = 0.05) -> tuple:
     """Type-II maximum likelihood of the ``TurbulenceParameters`` on samples: positions (n, 2)
     [m], forces (n,) [N], times (n,) [s]. The likelihood is the product of the likelihoods of
     runs of ``block`` samples consecutive in time (a composite likelihood: a gust and the
     plate's local neighbourhood both lie within a run; cost n block^2 instead of n^3; block 0:
     the exact likelihood). Starts from ``start`` (clipped into the bounds), keeps every value
     inside its bounds (L-BFGS-B on the logs, analytic gradient; stops when an iteration gains
-    less than ``tolerance`` x |log likelihood|). Each sample's force level is the blockwise
+    less than ``tolerance`` [nats] of log likelihood: far below what tells two values apart). Each sample's force level is the blockwise
     posterior mean at ``start`` (``local_level``). Returns (parameters, log likelihood [nats],
     number of likelihood evaluations)."""
     bounds = check_bounds(bounds)
@@ -259,15 +248,24 @@ def fit_turbulence(positions, forces, times, start: TurbulenceParameters = Turbu
     y = np.asarray(forces, dtype=float).ravel()
     t = np.asarray(times, dtype=float).ravel()
     order = np.argsort(t, kind='stable')
-    blocks = _blocks(X[order], y[order], t[order], block)
+    X, y, t = X[order], y[order], t[order]
     mean = float(np.mean(y))
     start = start.clipped(bounds)
-    level = local_level(blocks, start, mean)
+    level = local_level(X, y, t, start, mean, block)
+    # equal runs, stacked (k, m): the likelihood of all runs in one batch of array operations
+    # (a run's last few samples, fewer than the number of runs, are left out of the fit)
+    k = len(_runs(len(y), block))
+    m = len(y) // k
+    take = (np.arange(k)[:, None] * (len(y) / k)).astype(int) + np.arange(m)[None, :]
+    args = (_Design(X[take], y[take], t[take]), level[take], y[take] - mean)
     vb = _vector_bounds(bounds)
-    sol = minimize(_nll, np.clip(_to_vector(start), vb[:, 0], vb[:, 1]),
-                   args=((blocks, _split(level, blocks)), y[order] - mean), jac=True,
-                   method='L-BFGS-B', bounds=vb,
-                   options={'maxiter': max_iter, 'ftol': tolerance, 'gtol': 1e-4})
+    x0 = np.clip(_to_vector(start), vb[:, 0], vb[:, 1])
+    first = _nll(x0, *args)
+    memo = {x0.tobytes(): first}   # L-BFGS-B asks for the start again: answer from memory
+    sol = minimize(lambda x, *a: memo.pop(x.tobytes(), None) or _nll(x, *a), x0, args=args,
+                   jac=True, method='L-BFGS-B', bounds=vb,
+                   options={'maxiter': max_iter, 'ftol': tolerance / max(abs(first[0]), 1.0),
+                            'gtol': 1e-3})
     p = _from_vector(np.clip(sol.x, vb[:, 0], vb[:, 1])).clipped(bounds)
     ll = float(-sol.fun - 0.5 * len(y) * np.log(2 * np.pi)) if sol.fun < 1e25 else -np.inf
     return p, ll, int(sol.nfev)
@@ -333,7 +331,7 @@ class TurbulentGaussianProcessField:
             p, _, self.evaluations_ = fit_turbulence(X, y, t, p, self.bounds, block=self.block,
                                                      max_iter=self.max_iter)
         self.params_ = p
-        self.level_ = local_level(_blocks(X, y, t, self.block), p, self.mean_)
+        self.level_ = local_level(X, y, t, p, self.mean_, self.block)
         K, _, _, _ = _Design(X, y, t).cov(p, self.level_)
         try:
             L = _cholesky(K)

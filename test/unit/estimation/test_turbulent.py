@@ -90,16 +90,16 @@ def test_white_noise_is_found_white():
 
 def test_the_likelihood_gradient_is_exact():
     X, y, t = synthetic(TRUTH, n=150, seed=1)
-    d = turbulent._Design(X, y, t)
-    level = np.abs(y)
+    runs = (slice(0, 75), slice(75, 150))          # two runs of 75 samples, stacked
+    d = turbulent._Design(np.stack([X[r] for r in runs]), np.stack([y[r] for r in runs]),
+                          np.stack([t[r] for r in runs]))
+    args = (d, np.abs(d.y), d.y - y.mean())
     x = turbulent._to_vector(replace(TRUTH, gust_fraction=0.4))
-    blocks = ([d], [level])
-    _, g = turbulent._nll(x, blocks, y - y.mean())
+    _, g = turbulent._nll(x, *args)
     for i in range(len(x)):
         e = np.zeros(len(x))
         e[i] = 1e-6
-        num = (turbulent._nll(x + e, blocks, y - y.mean())[0]
-               - turbulent._nll(x - e, blocks, y - y.mean())[0]) / 2e-6
+        num = (turbulent._nll(x + e, *args)[0] - turbulent._nll(x - e, *args)[0]) / 2e-6
         assert g[i] == pytest.approx(num, rel=1e-4, abs=1e-5)
 
 
