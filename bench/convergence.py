@@ -340,6 +340,10 @@ def main(argv=None):
     ap.add_argument('--methods', default=','.join(METHODS))
     ap.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                     help='an adaptive-update setting for the adaptive methods, e.g. radius=0.5 (repeatable)')
+    ap.add_argument('--estimator', action='append', default=[], metavar='NAME=VALUE',
+                    help="a shaping.estimator setting for every method, e.g. noise_model=white (repeatable)")
+    ap.add_argument('--sweep', action='append', default=[], metavar='NAME=VALUE',
+                    help='a shaping.sweep setting, e.g. std_factor=2 or region.change_error=0.8 (repeatable)')
     ap.add_argument('--targets', default=None, help='only these targets (comma-separated)')
     ap.add_argument('--source', choices=('plate', 'static'), default='plate',
                     help='measurement source: the moving plate (default) or the static sensor grid')
@@ -363,6 +367,7 @@ def main(argv=None):
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for plant in make_plants(plant_names, Path(tmp)):
+            plant.setup = with_settings(plant.setup, args.estimator, args.sweep)
             targets = plant.targets[:2] if args.quick else plant.targets
             if args.targets:
                 targets = [t for t in targets if t in args.targets.split(',')]
@@ -390,13 +395,34 @@ def main(argv=None):
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     meta = {'seeds': seeds, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
-            'methods': methods,
+            'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))
     print(f'wrote {args.json}')
 
 
 KS = (0, 1, 2, 3, 4, 6, 12)
+
+
+def _value(text: str):
+    return json.loads(text) if text[:1] in '0123456789-[{tf' else text
+
+
+def with_settings(setup, estimator=(), sweep=()):
+    """``setup`` with shaping.estimator and shaping.sweep settings replaced (NAME=VALUE each;
+    a dotted name reaches into a subsection: region.change_error=0.8)."""
+    if not estimator and not sweep:
+        return setup
+    sections = {'estimator': dict(setup.shaping.estimator or {}), 'sweep': dict(setup.shaping.sweep or {})}
+    for name, items in (('estimator', estimator), ('sweep', sweep)):
+        for kv in items:
+            key, _, value = kv.partition('=')
+            head, _, sub = key.partition('.')
+            if sub:
+                sections[name][head] = {**dict(sections[name].get(head) or {}), sub: _value(value)}
+            else:
+                sections[name][head] = _value(value)
+    return replace(setup, shaping=replace(setup.shaping, **sections))
 
 
 def _fmt_s(v):

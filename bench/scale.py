@@ -15,6 +15,8 @@ covers the wall; prior: the rig's fitted jets (config/model.yaml) on every fan.
   python bench/scale.py --series           # + how time grows with fans, key points, samples
                                            #   (writes bench/out/scale.json and docs/scaling.png)
   python bench/scale.py --gp-accuracy      # local GP vs exact GP on walls small enough for both
+  python bench/scale.py --quick            # a 6 x 6 wall, 289 key points, 1,390 samples (seconds;
+                                           #   writes bench/out/scale_quick.json)
 
 Every run merges what it measured into the JSON (bench/out/scale.json): a --gp-accuracy run keeps
 the --series data of an earlier run, so --replot still works.
@@ -86,7 +88,8 @@ def run(n_side: int, n_key: int, n_samples: int, iterations: int = 4, target: fl
         rows_est = {}
 
         def measure(applied=applied, sweep=sweep, rows_est=rows_est):
-            return applied, sweep, _timed(rows_est, loop.estimator.estimate, sweep, kp)
+            # ShapingLoop.measure's (applied, sweep, estimate, region): a whole sweep, no region
+            return applied, sweep, _timed(rows_est, loop.estimator.estimate, sweep, kp), {}
         loop.measure = measure
         if memory:
             tracemalloc.start()
@@ -199,10 +202,23 @@ def main(argv=None):
     ap.add_argument('--series', action='store_true')
     ap.add_argument('--gp-accuracy', action='store_true')
     ap.add_argument('--iterations', type=int, default=4)
-    ap.add_argument('--json', default='bench/out/scale.json')
+    ap.add_argument('--quick', action='store_true', help='a 6 x 6 wall, 289 key points, 1,390 samples, '
+                    'no memory run (a smoke test: seconds)')
+    ap.add_argument('--json', default=None, help='results file (default bench/out/scale.json, '
+                    'bench/out/scale_quick.json with --quick)')
     ap.add_argument('--plot', default='docs/scaling.png')
     ap.add_argument('--replot', action='store_true', help='only redraw the plot from --json')
     args = ap.parse_args(argv)
+    if args.json is None:
+        args.json = 'bench/out/scale_quick.json' if args.quick else 'bench/out/scale.json'
+    if args.quick:
+        print('6 x 6 wall, 289 key points, 1,390 samples per sweep:')
+        quick = run(6, 289, 1390, iterations=2)
+        print(f"  => estimate {quick['estimate_cpu_s']:.3f} s + update {quick['update_cpu_s']:.3f} s = "
+              f"{quick['total_cpu_s']:.3f} s CPU per iteration")
+        merge_json(args.json, {'wall_6x6': quick})
+        print(f'wrote {args.json}')
+        return
     if args.replot:
         series = (read_json(args.json) or {}).get('series')
         if not series:

@@ -51,6 +51,10 @@ class SweepLength:
     min_samples: int = 300
     chunk_samples: int = 50
     std_factor: float = 1.2
+    #: an interim estimate reuses the hyperparameters fitted at the sweep's first estimate
+    #: until the sweep has grown to this many times the samples they were fitted on (then
+    #: they are fitted again): one or two fits per sweep instead of one per chunk
+    refit_growth: float = 1.5
     #: where to sweep after the first iteration: a ``control.region.SweepRegion`` section
     region: Mapping | None = None
 
@@ -61,6 +65,8 @@ class SweepLength:
         if not (isinstance(self.chunk_samples, int) and self.chunk_samples >= 1):
             raise ConfigError(f'shaping.sweep.chunk_samples must be a whole number >= 1; got '
                               f'{self.chunk_samples!r}')
+        if not (isinstance(self.refit_growth, (int, float)) and self.refit_growth >= 1):
+            raise ConfigError(f'shaping.sweep.refit_growth must be >= 1; got {self.refit_growth!r}')
         if not self.std_factor > 0:
             raise ConfigError(f'shaping.sweep.std_factor must be > 0; got {self.std_factor!r}')
         if self.region is not None and not isinstance(self.region, (Mapping, SweepRegion)):
@@ -102,6 +108,7 @@ class SweepMonitor:
         self.n = 0
         self.estimate = None
         self.consistency = float('nan')  # a region sweep's check of its carried values
+        self.fitted = None   # (the estimate whose hyperparameters interim estimates reuse, its sweep's length)
 
     def add(self, positions) -> None:
         positions = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -111,9 +118,16 @@ class SweepMonitor:
     def estimate_now(self, sweep):
         """The field from ``sweep`` (fused with the plan's carried values); SweepError as the
         estimator raises it."""
+        reuse = None
+        if self.fitted is not None and len(sweep) < self.policy.refit_growth * self.fitted[1]:
+            reuse = self.fitted[0]
         if self.plan is None:
-            return self.estimator.estimate(sweep, self.key_points)
-        estimate, self.consistency = fused_estimate(self.estimator, sweep, self.key_points, self.plan)
+            estimate = self.estimator.estimate(sweep, self.key_points, reuse=reuse)
+        else:
+            estimate, self.consistency = fused_estimate(self.estimator, sweep, self.key_points,
+                                                        self.plan, reuse=reuse)
+        if reuse is None:
+            self.fitted = (estimate, len(sweep))
         return estimate
 
     def check(self, sweep) -> SweepProgress:
@@ -129,11 +143,11 @@ class SweepMonitor:
         return SweepProgress(self.n, self.coverage.share, worst, worst <= self.std_max)
 
 
-def fused_estimate(estimator, sweep, key_points, plan):
+def fused_estimate(estimator, sweep, key_points, plan, reuse=None):
     """A region sweep's field estimate: the GP on ``sweep`` (only the plan's needed key points
     must be passed) fused at every key point with what the plan carries over; returns it and
-    the plan's ``consistency`` with the fresh estimate."""
-    fresh = estimator.estimate(sweep, key_points, required=plan.needed)
+    the plan's ``consistency`` with the fresh estimate. reuse: as ``FieldEstimator.estimate``."""
+    fresh = estimator.estimate(sweep, key_points, required=plan.needed, reuse=reuse)
     mean, std = plan.fuse(fresh.mean, fresh.std)
     return replace(fresh, mean=mean, std=std), plan.consistency(fresh.mean, fresh.std)
 

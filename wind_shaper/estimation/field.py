@@ -5,6 +5,7 @@ Positions are plate centres [m, tunnel frame]; forces are vertical plate forces 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, LinAlgError, solve_triangular
@@ -13,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from ..core.errors import ConfigError, SweepError
 from ..core.tunnel import Sweep
+from .turbulent import TurbulenceParameters, TurbulentGaussianProcessField, check_bounds
 
 
 def get_closest(sample_positions: np.ndarray, key_points: np.ndarray) -> np.ndarray:
@@ -31,11 +33,13 @@ def get_closest(sample_positions: np.ndarray, key_points: np.ndarray) -> np.ndar
 @dataclass(frozen=True)
 class Subsample:
     """The samples picked for the GP. positions (n, 2) [m], forces (n,) [N], and for each key
-    point the distance [m] to its nearest sample (coverage)."""
+    point the distance [m] to its nearest sample (coverage), and the picked samples' times [s]."""
 
     positions: np.ndarray
     forces: np.ndarray
     key_distance: np.ndarray
+    #: (n,) sample times [s] since the sweep started (None when the source has none)
+    times: np.ndarray | None = None
 
 
 def closest_samples(sweep: Sweep, key_points: np.ndarray) -> Subsample:
@@ -47,7 +51,7 @@ def closest_samples(sweep: Sweep, key_points: np.ndarray) -> Subsample:
     idx = get_closest(clean.positions, key_points)
     dist = np.linalg.norm(clean.positions[idx] - key_points, axis=1)
     unique = np.unique(idx)
-    return Subsample(clean.positions[unique], clean.forces[unique], dist)
+    return Subsample(clean.positions[unique], clean.forces[unique], dist, clean.times[unique])
 
 
 class GaussianProcessField:
@@ -300,44 +304,95 @@ class FieldEstimate:
 class FieldEstimator:
     """Sweep -> field at the key points, with the checks a lab needs before trusting it.
 
+    noise_model: ``turbulent`` (default): the GP with noise sd sqrt(absolute^2 + (relative F)^2)
+    and gusts correlated over sample time, all six hyperparameters fitted to each sweep
+    (``estimation.turbulent``; its std is calibrated); ``white``: the paper's GP with one white
+    noise_std [N] (its std is too small when the noise grows with the force or comes in gusts).
     min_samples: fewer finite samples than this is an error; max_gap [m]: a key point whose
     nearest sample is farther than this means the sweep missed part of the area.
     """
 
+    noise_model: str = 'turbulent'
     length_scale: float = 0.10
     noise_std: float = 0.05
     signal_std: float | None = None
     min_samples: int = 50
     max_gap: float = 0.08
-    #: exact: one GP on all picked samples; local: ``LocalGaussianProcessField`` (large walls);
-    #: auto: local above ``max_exact`` picked samples.
+    #: exact: one GP on all picked samples; local: ``LocalGaussianProcessField`` (large walls,
+    #: white noise only); auto: local above ``max_exact`` picked samples.
     method: str = 'auto'
     max_exact: int = 2000
     local_block: float = 0.20
     local_halo: float = 0.15
-    #: estimate length_scale, noise_std and signal_std from each sweep (type-II maximum
-    #: likelihood inside the bounds below, starting from the values above); exact GP only.
+    #: white model: estimate length_scale, noise_std and signal_std from each sweep (type-II
+    #: maximum likelihood inside the bounds below, starting from the values above); exact GP only.
     fit_hyperparameters: bool = False
     length_scale_bounds: tuple = LENGTH_SCALE_BOUNDS
     noise_std_bounds: tuple = NOISE_STD_BOUNDS
+    #: turbulent model: the start values of the fit (and the values used when a sweep has fewer
+    #: than ``min_fit_samples`` picked samples): absolute noise sd [N], relative noise sd
+    #: [fraction of the force], gust share of the noise variance [0..1], gust time [s]; with
+    #: length_scale and signal_std (None: the forces' spread) above.
+    absolute_noise: float = 0.03
+    relative_noise: float = 0.04
+    gust_fraction: float = 0.5
+    gust_time: float = 0.1
+    #: bounds (low, high) of absolute, relative, gust_fraction, gust_time and signal_std
+    #: overriding ``estimation.turbulent.TURBULENCE_BOUNDS``; the length scale keeps
+    #: ``length_scale_bounds``
+    turbulence_bounds: Mapping | None = None
+    min_fit_samples: int = 60
+    #: samples per run of the fit's composite likelihood (0: the exact likelihood, n^3 per step)
+    fit_block: int = 80
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
             raise ConfigError(f'estimator method must be auto, exact or local; got {self.method!r}')
+        if self.noise_model not in ('turbulent', 'white'):
+            raise ConfigError(f'estimator noise_model must be turbulent or white; got {self.noise_model!r}')
         for name in ('length_scale_bounds', 'noise_std_bounds'):
             lo, hi = (float(v) for v in getattr(self, name))
             if not 0 < lo <= hi:
                 raise ConfigError(f'estimator {name} must be (low, high) with 0 < low <= high; got '
                                   f'{getattr(self, name)}')
             object.__setattr__(self, name, (lo, hi))
+        if self.noise_model == 'turbulent':
+            self.turbulence_start(1.0)             # validates the start values
+            TurbulentGaussianProcessField(bounds=self.fit_bounds, min_fit_samples=self.min_fit_samples,
+                                          block=self.fit_block)  # validates the fit settings
 
-    def make_gp(self, n_samples: int, positions=None, forces=None) -> GaussianProcessField:
+    @property
+    def fit_bounds(self) -> dict:
+        """The turbulent model's bounds, name -> (low, high)."""
+        return check_bounds({**dict(self.turbulence_bounds or {}),
+                             'length_scale': self.length_scale_bounds})
+
+    def turbulence_start(self, spread: float) -> TurbulenceParameters:
+        """The turbulent model's start values; ``spread`` [N]: the forces' sd, the signal sd's
+        start unless ``signal_std`` is set."""
+        return TurbulenceParameters(self.length_scale,
+                                    self.signal_std if self.signal_std is not None else max(spread, 1e-3),
+                                    self.absolute_noise, self.relative_noise, self.gust_fraction,
+                                    self.gust_time)
+
+    def make_gp(self, n_samples: int, positions=None, forces=None, reuse=None):
         """The GP this estimator uses for ``n_samples`` picked samples (hyperparameters
-        estimated from positions/forces when ``fit_hyperparameters``)."""
+        estimated from positions/forces when fitted; ``reuse``: an earlier estimate of the same
+        sweep whose fitted hyperparameters to take instead of fitting again)."""
         local = self.method == 'local' or (self.method == 'auto' and n_samples > self.max_exact)
         if local:
             return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
                                              self.local_block, self.local_halo)
+        old = getattr(reuse, 'gp', None)
+        if self.noise_model == 'turbulent':
+            if isinstance(old, TurbulentGaussianProcessField) and old.fitted_:
+                return TurbulentGaussianProcessField(old.params_, self.fit_bounds, fit_parameters=False)
+            spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
+            return TurbulentGaussianProcessField(self.turbulence_start(spread), self.fit_bounds,
+                                                 min_fit_samples=self.min_fit_samples,
+                                                 block=self.fit_block)
+        if isinstance(old, GaussianProcessField) and self.fit_hyperparameters:
+            return GaussianProcessField(old.length_scale, old.noise_std, old.signal_std)
         if self.fit_hyperparameters and positions is not None:
             hp = fit_hyperparameters(positions, forces, length_scale=self.length_scale,
                                      noise_std=self.noise_std, signal_std=self.signal_std,
@@ -370,14 +425,19 @@ class FieldEstimator:
                 f'sweep the plate over {area}')
         return sub
 
-    def estimate(self, sweep: Sweep, key_points: np.ndarray, required=None) -> FieldEstimate:
+    def estimate(self, sweep: Sweep, key_points: np.ndarray, required=None, reuse=None) -> FieldEstimate:
         """The field at ``key_points`` (N, 2) [m] from ``sweep``; ``required`` (N,) bool: only
         these key points must have been passed (a region sweep, ``control.region``); the others
         get the GP's answer however far the samples are (a large std there). The GP does not
-        depend on ``required``, only the check does (``check_coverage``)."""
+        depend on ``required``, only the check does (``check_coverage``). ``reuse``: an earlier
+        estimate of the same sweep (fewer samples) whose fitted hyperparameters to use instead
+        of fitting them again (an adaptive sweep's interim estimates)."""
         sub = self._checked(sweep, key_points, required)
-        gp = self.make_gp(len(sub.forces), sub.positions, sub.forces)
-        gp.fit(sub.positions, sub.forces)
+        gp = self.make_gp(len(sub.forces), sub.positions, sub.forces, reuse=reuse)
+        if isinstance(gp, TurbulentGaussianProcessField):
+            gp.fit(sub.positions, sub.forces, sub.times)
+        else:
+            gp.fit(sub.positions, sub.forces)
         mean, std = gp.predict(key_points, return_std=True)
         return FieldEstimate(np.asarray(key_points, float), mean, std, sub.key_distance,
                              len(sub.forces), gp)

