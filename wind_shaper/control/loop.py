@@ -146,11 +146,15 @@ class ShapingLoop:
         region sweep's plan and check as written to the record's info ({} for a whole sweep)."""
         applied = self.tunnel.apply(self.U)
         policy = self.sweep_length
+        reuse = None   # the last sweep's fitted hyperparameters, between refits (SweepLength.refit_sweeps)
+        if policy is not None and self.history and len(self.history) % policy.refit_sweeps:
+            reuse = self.history[-1].estimate
         if policy is None or not policy.adaptive or not hasattr(self.tunnel, 'sweep_chunks'):
             sweep = self.tunnel.sweep(self.n_samples)
-            return applied, sweep, self.estimator.estimate(sweep, self.key_points), {}
+            return applied, sweep, self.estimator.estimate(sweep, self.key_points, reuse=reuse), {}
         plan = self.region_plan(applied)
-        monitor = SweepMonitor(policy, self.estimator, self.key_points, policy.std_max(self.rule), plan)
+        monitor = SweepMonitor(policy, self.estimator, self.key_points, policy.std_max(self.rule), plan,
+                               reuse=reuse)
         parts = []
         for part in self.tunnel.sweep_chunks(self.n_samples, policy.chunk_samples,
                                              **({} if plan is None else {'region': plan.area})):

@@ -55,6 +55,10 @@ class SweepLength:
     #: until the sweep has grown to this many times the samples they were fitted on (then
     #: they are fitted again): one or two fits per sweep instead of one per chunk
     refit_growth: float = 1.5
+    #: a run fits the hyperparameters on the first sweep and again every this many sweeps; the
+    #: sweeps between reuse the last fit (the tunnel's turbulence, a share of the force, does not
+    #: change from one sweep to the next), which keeps an iteration's estimates cheap
+    refit_sweeps: int = 4
     #: where to sweep after the first iteration: a ``control.region.SweepRegion`` section
     region: Mapping | None = None
 
@@ -65,6 +69,9 @@ class SweepLength:
         if not (isinstance(self.chunk_samples, int) and self.chunk_samples >= 1):
             raise ConfigError(f'shaping.sweep.chunk_samples must be a whole number >= 1; got '
                               f'{self.chunk_samples!r}')
+        if not (isinstance(self.refit_sweeps, int) and self.refit_sweeps >= 1):
+            raise ConfigError(f'shaping.sweep.refit_sweeps must be a whole number >= 1; got '
+                              f'{self.refit_sweeps!r}')
         if not (isinstance(self.refit_growth, (int, float)) and self.refit_growth >= 1):
             raise ConfigError(f'shaping.sweep.refit_growth must be >= 1; got {self.refit_growth!r}')
         if not self.std_factor > 0:
@@ -97,7 +104,8 @@ class SweepMonitor:
     needed key points, the minimum shrinks with its share, and the estimate is fused with what
     it carries over."""
 
-    def __init__(self, policy: SweepLength, estimator, key_points, std_max: float, plan=None):
+    def __init__(self, policy: SweepLength, estimator, key_points, std_max: float, plan=None,
+                 reuse=None):
         self.policy, self.estimator, self.plan = policy, estimator, plan
         self.key_points = np.asarray(key_points, dtype=float)
         self.std_max = float(std_max)
@@ -109,6 +117,8 @@ class SweepMonitor:
         self.estimate = None
         self.consistency = float('nan')  # a region sweep's check of its carried values
         self.fitted = None   # (the estimate whose hyperparameters interim estimates reuse, its sweep's length)
+        #: an earlier sweep's estimate whose hyperparameters every estimate of this sweep reuses
+        self.reuse = reuse
 
     def add(self, positions) -> None:
         positions = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -118,8 +128,8 @@ class SweepMonitor:
     def estimate_now(self, sweep):
         """The field from ``sweep`` (fused with the plan's carried values); SweepError as the
         estimator raises it."""
-        reuse = None
-        if self.fitted is not None and len(sweep) < self.policy.refit_growth * self.fitted[1]:
+        reuse = self.reuse
+        if reuse is None and self.fitted is not None and len(sweep) < self.policy.refit_growth * self.fitted[1]:
             reuse = self.fitted[0]
         if self.plan is None:
             estimate = self.estimator.estimate(sweep, self.key_points, reuse=reuse)

@@ -385,8 +385,10 @@ class FieldEstimator:
                                              self.local_block, self.local_halo)
         old = getattr(reuse, 'gp', None)
         if self.noise_model == 'turbulent':
-            if isinstance(old, TurbulentGaussianProcessField) and old.fitted_:
-                return TurbulentGaussianProcessField(old.params_, self.fit_bounds, fit_parameters=False)
+            if isinstance(old, TurbulentGaussianProcessField) and (old.fitted_ or old.reused_):
+                gp = TurbulentGaussianProcessField(old.params_, self.fit_bounds, fit_parameters=False)
+                gp.reused_ = True   # fitted values, carried on (they may be reused again)
+                return gp
             spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
             return TurbulentGaussianProcessField(self.turbulence_start(spread), self.fit_bounds,
                                                  min_fit_samples=self.min_fit_samples,

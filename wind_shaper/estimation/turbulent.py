@@ -301,6 +301,8 @@ class TurbulentGaussianProcessField:
         self.start, self.bounds = start, check_bounds(bounds)
         self.fit_parameters, self.min_fit_samples = bool(fit_parameters), min_fit_samples
         self.block, self.max_iter = block, max_iter
+        #: True when the start values are an earlier sweep's fitted ones (``FieldEstimator.make_gp``)
+        self.reused_ = False
 
     def __repr__(self) -> str:
         p = getattr(self, 'params_', self.start)
