@@ -109,3 +109,27 @@ def test_a_truncated_sweep_through_load_sweeps_is_a_clear_refusal(tmp_path):
     with pytest.raises(WindShaperError, match='cut short or damaged'):
         load_sweeps(tmp_path / 'e')
 
+
+def test_states_are_read_from_the_folder_once_and_kept_up_to_date_by_the_writes(tmp_path,
+                                                                               monkeypatch):
+    """The collect service's status asks for every row's state twice a second: with 1000 rows
+    reading them from disk took about 50 ms on the executor each time. The store reads them
+    when it is opened, then its own writes keep them; nothing reads the folder per status."""
+    p = plan(n=6)
+    store = ExperimentStore.open(tmp_path, 'e', p)
+    store.write_sweep(0, sweep(p.commands[0]), {'coverage': 1.0})
+    reads = []
+    real = ExperimentStore.row_state
+    monkeypatch.setattr(ExperimentStore, 'row_state',
+                        lambda self, i: reads.append(i) or real(self, i))
+    for _ in range(3):
+        assert store.states() == [STORED] + [PENDING] * 5
+    assert reads == []
+    store.write_flagged(2, sweep(p.commands[2]), {'coverage': 0.5})
+    store.write_sweep(3, sweep(p.commands[3]), {'coverage': 1.0})
+    store.write_flagged(3, None, {'coverage': 0.0})   # a flagged take never un-stores a row
+    assert store.states() == [STORED, PENDING, FLAGGED, STORED, PENDING, PENDING]
+    assert store.pending() == [1, 2, 4, 5] and reads == []
+    # what the folder holds agrees, read afresh
+    assert ExperimentStore.open(tmp_path, 'e').states() == store.states()
+    assert store.refresh() == store.states() and len(reads) == 12
