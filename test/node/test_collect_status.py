@@ -4,6 +4,7 @@ row and progress, instead of a stale 'idle'; a coordinator destroyed mid-experim
 SIGTERM) ends the experiment's service callback without touching the destroyed node."""
 import gc
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -47,15 +48,19 @@ def test_the_iteration_status_says_an_experiment_runs_and_then_what_the_fans_do(
     assert graph.status().state == IterationStatus.STATE_IDLE
 
 
-def test_a_coordinator_destroyed_mid_experiment_raises_nothing_into_its_destroyed_node(graph,
-                                                                                      setup):
+@pytest.mark.parametrize('state', ['commanding', 'sweeping'])
+def test_a_coordinator_destroyed_mid_experiment_raises_nothing_into_its_destroyed_node(
+        graph, setup, state):
     """The runner shuts the executor down and destroys the node: the collect service's coroutine,
-    left waiting, is closed later (garbage collection) and its clean-up published into the
-    destroyed node: rclpy's InvalidHandle, printed as an exception ignored at shutdown."""
-    graph.start_coordinator(sweep_duration_s=5.0)
+    left waiting (for the fans to settle, for the sweep service), is closed later (garbage
+    collection) and its clean-up used the destroyed node (its status publishers, the wait's
+    timer): rclpy's InvalidHandle, printed as an exception ignored at shutdown."""
+    graph.start_coordinator(sweep_duration_s=5.0, settle_s=5.0)
     _, request = collect_request(setup, 'lhs:3')
     graph.call_async(graph.collect, request)
-    assert wait_until(lambda: any(m.state == 'sweeping' for m in graph.experiment_statuses))
+    assert wait_until(lambda: any(m.state == state for m in graph.experiment_statuses),
+                      timeout=20.0)
+    time.sleep(0.5)
     ignored = []
     previous = sys.unraisablehook
     sys.unraisablehook = lambda u: ignored.append(u)
