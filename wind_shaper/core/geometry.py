@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError
-from .limits import excerpt
+from .limits import DEFAULT_LIMITS, excerpt
 
 #: Mount groups. The paper's rig has CCW fans mounted higher ("higher"), CW fans lower ("lower")
 #: and a low central fan ("central"); each group gets its own PWM-to-force curve.
@@ -79,6 +79,9 @@ class Fan:
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
             raise ConfigError(f'a fan name must be a non-empty text, not {excerpt(self.name)}')
+        if len(self.name) > DEFAULT_LIMITS.name_chars:
+            raise ConfigError(f'a fan name has {len(self.name)} characters, more than '
+                              f'{DEFAULT_LIMITS.name_chars}: {excerpt(self.name)}')
         for axis in ('x', 'y'):
             object.__setattr__(self, axis, config_number(getattr(self, axis),
                                                          f'fan {self.name!r}: {axis}'))
@@ -86,9 +89,10 @@ class Fan:
             raise ConfigError(f'fan {self.name!r}: enabled must be true or false, not '
                               f'{excerpt(self.enabled)}')
         if self.spin not in SPINS:
-            raise ConfigError(f'fan {self.name!r}: spin {self.spin!r} is not one of {SPINS}')
+            raise ConfigError(f'fan {self.name!r}: spin {excerpt(self.spin)} is not one of {SPINS}')
         if self.group not in GROUPS:
-            raise ConfigError(f'fan {self.name!r}: group {self.group!r} is not one of {GROUPS}')
+            raise ConfigError(f'fan {self.name!r}: group {excerpt(self.group)} is not one of '
+                              f'{GROUPS}')
 
 
 @dataclass(frozen=True)
