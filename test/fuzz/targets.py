@@ -115,6 +115,10 @@ def model_text() -> str:
     return (setup().config_dir / 'model.yaml').read_text()
 
 
+def read_yaml_text(text: str) -> dict:
+    return yaml.safe_load(text)
+
+
 def design_csv() -> str:
     fans = setup().geometry.fans.names
     rows = ['label,' + ','.join(fans)]
@@ -218,9 +222,44 @@ def _damaged_folder(base: Path, edits: dict[str, bytes]) -> str:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def target_experiment_folder(edit: tuple[str, str]) -> str:
-    which, text = edit
-    return _damaged_folder(experiment_folder(), {which: text.encode('utf-8', 'surrogatepass')})
+def target_experiment_folder(edit: tuple[str, str | bytes]) -> str:
+    which, data = edit
+    if isinstance(data, str):
+        data = data.encode('utf-8', 'surrogatepass')
+    return _damaged_folder(experiment_folder(), {which: data})
+
+
+@st.composite
+def damaged_bytes(draw, base: bytes) -> bytes:
+    """``base`` cut short at any point, or with a few bytes overwritten (a copy interrupted, a
+    disk error): the damage binary files meet."""
+    if draw(st.booleans()):
+        return base[:draw(st.integers(0, max(len(base) - 1, 0)))]
+    data = bytearray(base)
+    for _ in range(draw(st.integers(1, 8))):
+        data[draw(st.integers(0, len(data) - 1))] = draw(st.integers(0, 255))
+    return bytes(data)
+
+
+@st.composite
+def damaged_tree(draw, doc: dict) -> str:
+    """The YAML of ``doc`` with one entry, at any depth, replaced by a random YAML value (a
+    mapping where a number belongs, a list where a mapping belongs, NaN, a huge integer)."""
+    doc = yaml.safe_load(yaml.safe_dump(doc))
+    paths, stack = [], [((), doc)]
+    while stack:
+        path, node = stack.pop()
+        if isinstance(node, dict):
+            for key, value in node.items():
+                paths.append(path + (key,))
+                stack.append((path + (key,), value))
+    path = draw(st.sampled_from(paths))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = draw(st.one_of(yaml_values(), st.sampled_from(
+        [float('nan'), float('inf'), 10 ** 400, 1e-12, 1e12, -1, 0, [], {}, 'x' * 300])))
+    return yaml.safe_dump(doc, sort_keys=False)
 
 
 def target_bag(edit: tuple[str, bytes]) -> str:
@@ -278,15 +317,18 @@ def strategies() -> dict:
     exp_files = ['experiment.yaml', 'sweeps/s000/record.json', 'sweeps/s000/sweep.npz',
                  'design.csv']
     bag_files = ['metadata.yaml', 'bag_0.mcap']
+    tunnel_text = (setup().config_dir / 'tunnel.yaml').read_text()
     return {
         'model file': (st.one_of(mutated(model_text()), hostile_text()), target_model_file),
         'design CSV': (st.one_of(mutated(design_csv()), hostile_text()), target_design_csv),
         'design YAML': (st.one_of(mutated(design_yaml()), hostile_text()), target_design_yaml),
-        'config YAML': (st.one_of(mutated((setup().config_dir / 'tunnel.yaml').read_text()),
+        'config YAML': (st.one_of(mutated(tunnel_text), damaged_tree(read_yaml_text(tunnel_text)),
                                   hostile_text()), target_config_yaml),
         'experiment folder': (st.tuples(st.sampled_from(exp_files), st.one_of(
             mutated((experiment_folder() / 'experiment.yaml').read_text()),
-            mutated(json.dumps({'coverage': 1.0, 'n_pairs': 200})), hostile_text())),
+            mutated(json.dumps({'coverage': 1.0, 'n_pairs': 200})), hostile_text())) | st.tuples(
+            st.just('sweeps/s000/sweep.npz'),
+            damaged_bytes((experiment_folder() / 'sweeps' / 's000' / 'sweep.npz').read_bytes())),
             target_experiment_folder),
         'bag': (st.tuples(st.sampled_from(bag_files), st.one_of(
             st.binary(max_size=2000),

@@ -49,3 +49,21 @@ def test_the_long_fuzz_run_works_at_its_quickest(tmp_path, capsys):
     assert [r['target'] for r in doc['targets']] == ['design CSV', 'set_model request']
     assert all(r['tried'] >= 1 and not r['crash'] for r in doc['targets'])
     assert 'resident memory grew' in capsys.readouterr().out
+
+
+@pytest.mark.ros
+def test_the_coordinators_memory_run_works_at_its_quickest(tmp_path, capsys, ros_env):
+    """bench/fuzz.py --coordinator 2: a coordinator process answers every hostile request, and
+    its memory is printed."""
+    import json
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from bench_module import load_bench
+    out = tmp_path / 'fuzz.json'
+    code = load_bench('fuzz').main(['--coordinator', '2', '--only', 'none', '--json', str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    node = json.loads(out.read_text())['coordinator']
+    assert node['alive'] and node['unanswered'] == 0 and node['requests'] >= 8, node
+    assert 'coordinator: ' in printed and 'resident memory' in printed

@@ -236,3 +236,111 @@ def test_the_robot_can_query_the_field_and_a_bad_query_changes_nothing(rig, faul
     fault_row('the robot asks for the field outside the tunnel', 'refused with the reason; '
               'the next query is answered', again.returncode == 0)
     assert again.returncode == 0, again.stderr
+
+
+@pytest.mark.timeout(240)   # with the graph's start when it runs alone
+def test_cancel_and_the_status_answer_while_the_largest_model_text_is_read(rig, fault_row,
+                                                                          monkeypatch):
+    """On the same graph: the largest set_model text the limits accept (limits.yaml_bytes, a
+    model file with a long list beside it) takes the coordinator seconds to read, in a worker
+    thread. Meanwhile cancel answers and a new status subscriber gets the status within 1 s
+    (medians of the calls made meanwhile, asked from another process as an operator's CLI
+    does), and the command in force is republished (the executor's timer runs on)."""
+    import statistics
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from std_srvs.srv import Trigger
+    from wind_shaper_msgs.msg import FanCommand, IterationStatus
+    from wind_shaper_msgs.srv import SetModel
+
+    from wind_shaper.core.limits import DEFAULT_LIMITS
+    from wind_shaper.ros import names, qos
+
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.delenv('ROS_LOCALHOST_ONLY', raising=False)
+    limit = DEFAULT_LIMITS.yaml_bytes   # what config/coordinator.yaml ships
+    model = (Path(__file__).resolve().parents[2] / 'config' / 'model.yaml').read_text()
+    row = '- [0.123456789, 0.987654321, 0.5]\n'
+    text = model + 'notes:\n' + row * ((limit - len(model) - 10) // len(row))
+    assert limit - 200 < len(text.encode()) <= limit
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(rig.env['ROS_DOMAIN_ID']))
+    node = rclpy.create_node('hostile_operator', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    commands = []
+    try:
+        node.create_subscription(FanCommand, names.FAN_COMMAND,
+                                 lambda m: commands.append(time.monotonic()), qos.COMMAND)
+        set_model = node.create_client(SetModel, names.SET_MODEL)
+        cancel = node.create_client(Trigger, names.CANCEL_ITERATION)
+        assert set_model.wait_for_service(timeout_sec=20) and cancel.wait_for_service(timeout_sec=20)
+
+        def answered(client, request, timeout_s=10.0):
+            t0 = time.monotonic()
+            future = client.call_async(request)
+            while not future.done() and time.monotonic() - t0 < timeout_s:
+                time.sleep(0.002)
+            assert future.done(), f'{client.srv_name} did not answer within {timeout_s} s'
+            return future.result(), time.monotonic() - t0
+
+        def status_seconds(timeout_s=10.0):
+            """A new subscriber's wait for the latched status, as `wind-shaper status` waits."""
+            got = []
+            t0 = time.monotonic()
+            sub = node.create_subscription(IterationStatus, names.STATUS,
+                                           lambda m: got.append(time.monotonic()), qos.LATCHED)
+            try:
+                while not got and time.monotonic() - t0 < timeout_s:
+                    time.sleep(0.002)
+            finally:
+                node.destroy_subscription(sub)
+            assert got, f'no status within {timeout_s} s'
+            return got[0] - t0
+
+        answered(cancel, Trigger.Request())   # warm: the first call also matches the reply
+        status_seconds()
+        t_start = time.monotonic()
+        future = set_model.call_async(SetModel.Request(model_yaml=text))
+        cancels, statuses = [], []
+        while not future.done() and time.monotonic() - t_start < 90:
+            response, seconds = answered(cancel, Trigger.Request())
+            assert 'no iteration or experiment is running' in response.message, response.message
+            cancels.append(seconds)
+            if not future.done():
+                statuses.append(status_seconds())
+            time.sleep(0.1)
+        assert future.done(), 'set_model did not answer within 90 s'
+        reading_s = time.monotonic() - t_start
+        assert future.result().success, future.result().message[:500]
+        during = [t for t in commands if t_start <= t <= t_start + reading_s]
+    finally:
+        stop.set()
+        spinner.join(5.0)
+        executor.shutdown(timeout_sec=2.0)
+        node.destroy_node()
+        context.try_shutdown()
+    assert len(cancels) >= 3 and len(statuses) >= 3, \
+        f'the text was read in {reading_s:.1f} s: too fast to measure ({cancels}, {statuses})'
+    cancel_s, status_s = statistics.median(cancels), statistics.median(statuses)
+    summary = (f'read in a worker thread in {reading_s:.1f} s; meanwhile cancel answered in '
+               f'{1000 * cancel_s:.0f} ms and a new status subscriber got the status in '
+               f'{1000 * status_s:.0f} ms (medians of {len(cancels)} and {len(statuses)}), the '
+               f'command republished {len(during)} times')
+    print(summary)
+    fault_row(f'set_model with the largest text the limits accept ({len(text.encode())} bytes) '
+              f'while an operator asks for cancel and the status',
+              summary, cancel_s < 1.0 and status_s < 1.0)
+    assert cancel_s < 1.0 and status_s < 1.0, (cancels, statuses)
+    # the republish timer ran on (2 Hz): at least one command per 1.5 s of reading
+    assert len(during) >= int(reading_s / 1.5), (len(during), reading_s)

@@ -287,3 +287,22 @@ def test_bad_sweep_requests_and_parameters_are_refused(harness, ros_context, qui
     with pytest.raises(ConfigError, match='channels'):
         SimTunnel(context=ros_context, parameter_overrides=[
             Parameter('config_dir', value=str(quiet_config)), Parameter('channels', value=[1, 2])])
+
+
+def test_a_region_that_cannot_be_planned_is_refused_at_once(harness):
+    """Found by the node-level fuzz tier: a region reach of 5e-324 m planned tours without end
+    (the service never answered, then the node died of MemoryError); a region of thousands of
+    points, or points far outside the tunnel, cost K x K distances or planned nonsense."""
+    h = harness()
+    for region, says in (
+            (dict(region_x=[0.0], region_y=[0.0], region_reach=5e-324), 'reach > 0'),
+            (dict(region_x=[0.0], region_y=[0.0], region_reach=float('nan')), 'reach > 0'),
+            (dict(region_x=[1e308], region_y=[0.0], region_reach=0.1), 'inside the tunnel'),
+            (dict(region_x=[0.0] * 3000, region_y=[0.0] * 3000, region_reach=0.1),
+             'more than the 2000')):
+        t0 = time.monotonic()
+        response = h.sweep(0.2, timeout_s=5.0, **region)
+        assert not response.success and says in response.message, response.message
+        assert time.monotonic() - t0 < 2.0 and len(response.message) < 400
+    assert h.node.sweeps_done == 0
+    assert h.sweep(0.2, timeout_s=10.0, region_x=[0.1], region_y=[0.0], region_reach=0.1).success

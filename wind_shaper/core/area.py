@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ConfigError
+from .limits import excerpt
 
 
 @dataclass(frozen=True)
@@ -22,9 +23,10 @@ class SweepArea:
     def __post_init__(self):
         c = np.asarray(self.centres, dtype=float).reshape(-1, 2)
         if len(c) == 0 or not np.all(np.isfinite(c)):
-            raise ConfigError(f'a sweep area needs at least one finite centre (x, y) [m]; got {c.tolist()}')
+            raise ConfigError(f'a sweep area needs at least one finite centre (x, y) [m]; got '
+                              f'{len(c)} centres: {excerpt(c.tolist(), quote=False)}')
         if not (np.isfinite(self.reach) and self.reach > 0):
-            raise ConfigError(f'a sweep area needs reach > 0 m; got {self.reach!r}')
+            raise ConfigError(f'a sweep area needs reach > 0 m; got {excerpt(self.reach)}')
         object.__setattr__(self, 'centres', c)
         object.__setattr__(self, 'reach', float(self.reach))
 

@@ -5,6 +5,8 @@ z up. Every position here is [m] in that frame. PWM commands are fractions 0..1 
 """
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field, replace
 from typing import Iterable, Mapping, Sequence
 
@@ -12,11 +14,50 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError
+from .limits import DEFAULT_LIMITS, excerpt
 
 #: Mount groups. The paper's rig has CCW fans mounted higher ("higher"), CW fans lower ("lower")
 #: and a low central fan ("central"); each group gets its own PWM-to-force curve.
 GROUPS = ('higher', 'lower', 'central')
 SPINS = ('cw', 'ccw')
+#: Most fans and key points a tunnel config may describe (a 36 x 36 wall has 1296 fans; the
+#: paper's disc 317 key points): a config beyond these is a typo or a damaged file, refused
+#: before any array is built.
+MAX_FANS = 10_000
+MAX_KEY_POINTS = 200_000
+#: Where a refused tunnel config sends the reader.
+CONFIG_HINT = 'see the shipped config/tunnel.yaml for the form'
+
+
+def config_mapping(value, where: str) -> dict:
+    """``value`` (a YAML mapping, or None / absent: empty) as a dict; ConfigError naming
+    ``where`` for anything else."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ConfigError(f'{where} must be a mapping (key: value lines), not the '
+                          f'{type(value).__name__} {excerpt(value)}; {CONFIG_HINT}')
+    return dict(value)
+
+
+def config_number(value, where: str, *, positive: bool = False, integer: bool = False):
+    """``value`` as a finite float (``integer``: an int), > 0 when ``positive``; ConfigError
+    naming ``where`` otherwise (a string, a list, NaN, an integer too large for a float)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ConfigError(f'{where} must be a number, not the {type(value).__name__} '
+                          f'{excerpt(value)}; {CONFIG_HINT}')
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number) or (positive and not number > 0):
+        raise ConfigError(f'{where} must be a finite{" positive" if positive else ""} number; '
+                          f'got {excerpt(value)}; {CONFIG_HINT}')
+    if integer:
+        if number != int(number):
+            raise ConfigError(f'{where} must be a whole number; got {excerpt(value)}')
+        return int(number)
+    return number
 
 
 @dataclass(frozen=True)
@@ -36,12 +77,22 @@ class Fan:
     enabled: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ConfigError(f'a fan name must be a non-empty text, not {excerpt(self.name)}')
+        if len(self.name) > DEFAULT_LIMITS.name_chars:
+            raise ConfigError(f'a fan name has {len(self.name)} characters, more than '
+                              f'{DEFAULT_LIMITS.name_chars}: {excerpt(self.name)}')
+        for axis in ('x', 'y'):
+            object.__setattr__(self, axis, config_number(getattr(self, axis),
+                                                         f'fan {self.name!r}: {axis}'))
+        if not isinstance(self.enabled, (bool, np.bool_)):
+            raise ConfigError(f'fan {self.name!r}: enabled must be true or false, not '
+                              f'{excerpt(self.enabled)}')
         if self.spin not in SPINS:
-            raise ConfigError(f'fan {self.name!r}: spin {self.spin!r} is not one of {SPINS}')
+            raise ConfigError(f'fan {self.name!r}: spin {excerpt(self.spin)} is not one of {SPINS}')
         if self.group not in GROUPS:
-            raise ConfigError(f'fan {self.name!r}: group {self.group!r} is not one of {GROUPS}')
-        if not (np.isfinite(self.x) and np.isfinite(self.y)):
-            raise ConfigError(f'fan {self.name!r}: position ({self.x}, {self.y}) is not finite')
+            raise ConfigError(f'fan {self.name!r}: group {excerpt(self.group)} is not one of '
+                              f'{GROUPS}')
 
 
 @dataclass(frozen=True)
@@ -96,25 +147,49 @@ class FanArray:
         """Build from a config mapping: ``{layout: paper_rig, hex_radius: 0.25, disabled: [CM]}``,
         ``{layout: grid, rows: 36, cols: 36, pitch: 0.08}`` or ``{fans: [{name, x, y, spin,
         group, enabled}, ...]}``."""
-        cfg = dict(cfg)
+        cfg = config_mapping(cfg, 'tunnel.fans')
         disabled = cfg.pop('disabled', []) or []
+        if not isinstance(disabled, list) or not all(isinstance(n, str) for n in disabled):
+            raise ConfigError(f'tunnel.fans.disabled must be a list of fan names, not '
+                              f'{excerpt(disabled)}; {CONFIG_HINT}')
         if 'fans' in cfg:
-            try:
-                fans = tuple(Fan(**dict(f)) for f in cfg['fans'])
-            except TypeError as exc:
-                raise ConfigError(f'bad fan entry in config: {exc}; each fan needs name, x, y '
-                                  f'and optionally spin, group, enabled') from None
-            return cls(fans).with_disabled(disabled)
+            entries = cfg['fans']
+            if not isinstance(entries, list) or not entries:
+                raise ConfigError(f'tunnel.fans.fans must be a list of fans, not '
+                                  f'{excerpt(entries)}; {CONFIG_HINT}')
+            if len(entries) > MAX_FANS:
+                raise ConfigError(f'tunnel.fans.fans lists {len(entries)} fans, more than '
+                                  f'{MAX_FANS}: check the file')
+            fans = []
+            for i, entry in enumerate(entries):
+                entry = config_mapping(entry, f'tunnel.fans.fans[{i}]')
+                if not all(isinstance(k, str) for k in entry):
+                    raise ConfigError(f'tunnel.fans.fans[{i}]: keys must be names; got '
+                                      f'{excerpt(list(entry))}')
+                try:
+                    fans.append(Fan(**entry))
+                except TypeError as exc:
+                    raise ConfigError(f'bad fan entry tunnel.fans.fans[{i}]: {exc}; each fan '
+                                      f'needs name, x, y and optionally spin, group, '
+                                      f'enabled') from None
+            return cls(tuple(fans)).with_disabled(disabled)
         layout = cfg.get('layout', 'paper_rig')
         if layout == 'paper_rig':
-            return cls.paper_rig(float(cfg.get('hex_radius', 0.25)), disabled)
+            return cls.paper_rig(config_number(cfg.get('hex_radius', 0.25), 'tunnel.fans.hex_radius',
+                                               positive=True), disabled)
         if layout == 'grid':
             try:
-                arr = cls.grid(int(cfg['rows']), int(cfg['cols']), float(cfg['pitch']))
+                rows, cols, pitch = (config_number(cfg[k], f'tunnel.fans.{k}', positive=True,
+                                                   integer=k != 'pitch')
+                                     for k in ('rows', 'cols', 'pitch'))
             except KeyError as exc:
                 raise ConfigError(f'grid layout needs {exc.args[0]!r}') from None
-            return arr.with_disabled(disabled)
-        raise ConfigError(f'unknown fan layout {layout!r}; use paper_rig, grid or a list of fans')
+            if rows * cols > MAX_FANS:
+                raise ConfigError(f'a grid of {rows} x {cols} fans is more than {MAX_FANS} fans: '
+                                  f'check tunnel.fans.rows and cols')
+            return cls.grid(rows, cols, pitch).with_disabled(disabled)
+        raise ConfigError(f'unknown fan layout {excerpt(layout)}; use paper_rig, grid or a list '
+                          f'of fans')
 
     def with_disabled(self, names: Iterable[str]) -> 'FanArray':
         """A copy with the named fans disabled (unknown names are an error)."""
@@ -178,8 +253,11 @@ def disc_key_points(radius: float = 0.30, spacing: float = 0.03) -> np.ndarray:
     hubs (0.25 m) and one plate half-width beyond.
     Returns (N, 2) [m, tunnel frame], ordered row by row.
     """
-    if not (radius > 0 and spacing > 0):
-        raise ConfigError(f'key points need radius > 0 and spacing > 0; got {radius}, {spacing}')
+    radius = config_number(radius, 'key_points.radius', positive=True)
+    spacing = config_number(spacing, 'key_points.spacing', positive=True)
+    if math.pi * (radius / spacing) ** 2 > MAX_KEY_POINTS:
+        raise ConfigError(f'a disc of radius {radius:g} m at a spacing of {spacing:g} m has more '
+                          f'than {MAX_KEY_POINTS} key points: check key_points.radius and spacing')
     n = int(np.floor(radius / spacing + 1e-9))
     ticks = np.arange(-n, n + 1) * spacing
     xx, yy = np.meshgrid(ticks, ticks)
@@ -190,8 +268,13 @@ def disc_key_points(radius: float = 0.30, spacing: float = 0.03) -> np.ndarray:
 
 def rect_key_points(half_width: float, half_height: float, nx: int, ny: int) -> np.ndarray:
     """Key points on an nx x ny grid over the rectangle [-hw, hw] x [-hh, hh] [m]."""
-    if nx < 1 or ny < 1:
-        raise ConfigError(f'rect key points need nx, ny >= 1; got {nx}, {ny}')
+    nx = config_number(nx, 'key_points.nx', positive=True, integer=True)
+    ny = config_number(ny, 'key_points.ny', positive=True, integer=True)
+    half_width = config_number(half_width, 'key_points.half_width', positive=True)
+    half_height = config_number(half_height, 'key_points.half_height', positive=True)
+    if nx * ny > MAX_KEY_POINTS:
+        raise ConfigError(f'{nx} x {ny} key points are more than {MAX_KEY_POINTS}: check '
+                          f'key_points.nx and ny')
     xx, yy = np.meshgrid(np.linspace(-half_width, half_width, nx),
                          np.linspace(-half_height, half_height, ny))
     return np.column_stack([xx.ravel(), yy.ravel()])
@@ -227,21 +310,25 @@ class TunnelGeometry:
     @classmethod
     def from_config(cls, cfg: Mapping) -> 'TunnelGeometry':
         """From the ``tunnel`` section of a YAML config (see ``config/tunnel.yaml``)."""
-        cfg = dict(cfg or {})
+        cfg = config_mapping(cfg, 'the tunnel section')
         fans = FanArray.from_config(cfg.get('fans', {}))
-        kp_cfg = dict(cfg.get('key_points', {}))
+        kp_cfg = config_mapping(cfg.get('key_points', {}), 'tunnel.key_points')
         kind = kp_cfg.pop('kind', 'disc')
+        if not all(isinstance(k, str) for k in kp_cfg):
+            raise ConfigError(f'tunnel.key_points: keys must be names; got {excerpt(list(kp_cfg))}')
         try:
             if kind == 'disc':
                 kp = disc_key_points(**kp_cfg)
             elif kind == 'rect':
                 kp = rect_key_points(**kp_cfg)
             else:
-                raise ConfigError(f'unknown key point kind {kind!r}; use disc or rect')
+                raise ConfigError(f'unknown key point kind {excerpt(kind)}; use disc or rect')
         except TypeError as exc:
-            raise ConfigError(f'bad key_points config: {exc}') from None
-        known = {'wall_radius', 'plate_side', 'sweep_radius'}
-        return cls(fans=fans, key_points=kp, **{k: float(v) for k, v in cfg.items() if k in known})
+            raise ConfigError(f'bad key_points config: {exc}; {CONFIG_HINT}') from None
+        known = ('wall_radius', 'plate_side', 'sweep_radius')
+        return cls(fans=fans, key_points=kp, **{k: config_number(cfg[k], f'tunnel.{k}',
+                                                                 positive=True)
+                                                for k in known if k in cfg})
 
     def with_disabled(self, names: Iterable[str]) -> 'TunnelGeometry':
         return replace(self, fans=self.fans.with_disabled(names))

@@ -105,7 +105,10 @@ def excerpt(value, chars: int = EXCERPT_CHARS, *, quote: bool = True) -> str:
     """A short excerpt of ``value`` for an error message: a string quoted (its repr; ``quote``
     False: as it is), anything else as its repr, cut to ``chars`` characters and then saying how
     long the whole was."""
-    text = value if isinstance(value, str) else repr(value)
+    try:
+        text = value if isinstance(value, str) else repr(value)
+    except ValueError:   # an integer of more digits than Python prints (4300)
+        text = f'<{type(value).__name__} too large to print>'
     cut = text if len(text) <= chars else text[:chars]
     shown = repr(cut) if quote and isinstance(value, str) else cut
     return shown if len(text) <= chars else f'{shown}... ({len(text)} characters in all)'

@@ -50,6 +50,7 @@ class CollectService:
         self._row, self._attempt, self._row_start = -1, 0, 0.0
         self._coverage: Coverage | None = None
         self._samples = 0
+        self.progress = 0.0   # share of the experiment done [0..1], as last published
         self._publish()
 
     # -- feedback -----------------------------------------------------------------------------------
@@ -78,10 +79,26 @@ class CollectService:
         where = self.where(self._row) if self._row >= 0 else 'starting'
         return f'{self._name}: {where}, {self._state}'
 
+    @property
+    def message(self) -> str:
+        return self._message
+
+    @property
+    def samples(self) -> int:
+        """Plate poses received in this sweep."""
+        return self._samples
+
+    @property
+    def coverage(self) -> float:
+        """Share of the key points the plate has passed in this sweep [0..1]; NaN: none yet."""
+        return math.nan if self._coverage is None else float(self._coverage.share)
+
     def publish(self) -> None:
         self._publish()
 
     def _publish(self) -> None:
+        if self.node.closing:   # an experiment ending after destroy_node: nothing to publish on
+            return
         exp = self._exp
         msg = ExperimentStatus(name=self._name, state=self._state, sweep=int(self._row),
                                attempt=int(self._attempt), message=self._message,
@@ -103,6 +120,7 @@ class CollectService:
                 msg.progress = float(msg.stored / len(exp)) if len(exp) else 1.0
         if self._coverage is not None:
             msg.coverage = float(self._coverage.share)
+        self.progress = float(msg.progress)
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self._status_pub.publish(msg)
 
@@ -186,8 +204,10 @@ class CollectService:
         finally:
             if exp is not None:
                 node.hold(np.zeros(len(node.fan_names)))   # off, whatever happened
+            self.active = False   # first: the iteration status then stops speaking of it
             node.end_procedure()
-            self.active = False
+        if node.closing:   # the node is going away (Ctrl-C, SIGTERM): no one to answer
+            return response
         # reading every row's record back is disk work: off the executor too
         states, coverage, summary = await in_thread(
             node, lambda: (exp.states(), exp.store.coverage(), exp.summary()))

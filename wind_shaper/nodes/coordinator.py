@@ -59,6 +59,8 @@ from .collect_service import CollectService
 from .hold_service import HoldService
 
 STATUS_HZ = 2.0  # status rate while an iteration runs [Hz]
+#: IterationStatus.state while a designed experiment (collect) runs.
+STATE_COLLECTING = getattr(IterationStatus, 'STATE_COLLECTING', 'collecting')
 
 
 @dataclass(frozen=True)
@@ -224,6 +226,11 @@ class CoordinatorNode(Node):
         if U is not None and not self._closing:
             self._cmd_pub.publish(fan_command(self._fan_names, U, self.get_clock().now().to_msg()))
 
+    @property
+    def closing(self) -> bool:
+        """destroy_node has begun: a procedure ending now publishes and answers nothing."""
+        return self._closing
+
     def destroy_node(self):
         # a procedure still awaiting something ends at its next step, and publishes nothing
         # into the destroyed node on its way out
@@ -233,8 +240,9 @@ class CoordinatorNode(Node):
 
     # -- status ---------------------------------------------------------------------------------------
     def set_state(self, state: str, message: str = '') -> None:
-        if self._collect.active:  # the experiment's feedback, not the iteration's status
+        if self._collect.active:  # the experiment's feedback; the iteration status says so
             self._collect.set_state(state, message)
+            self._publish_status()
             return
         with self._lock:
             self._state, self._message = state, message
@@ -250,23 +258,34 @@ class CoordinatorNode(Node):
     def _on_status_timer(self) -> None:
         if self._collect.active:
             self._collect.publish()
-        elif self._running:
+        if self._running:
             self._publish_status()
 
     def _publish_status(self) -> None:
+        if self._closing:   # a procedure ending after destroy_node: the publisher is gone
+            return
         run_ = self._run
+        collect = self._collect
         with self._lock:
-            progress = self._progress
-            if self._state == IterationStatus.STATE_SWEEPING and self._running:
+            state, message, progress = self._state, self._message, self._progress
+            samples, coverage, max_std = self._samples, self._coverage, self._max_std
+            if collect.active:
+                # an experiment runs: the status says so (with its row and progress) rather
+                # than the idle state or the last iteration's outcome
+                state, message, progress = (STATE_COLLECTING, f'experiment {collect.status_text()}'
+                                            + (f': {collect.message}' if collect.message else ''),
+                                            collect.progress)
+                samples, coverage, max_std = collect.samples, collect.coverage, math.nan
+            elif self._state == IterationStatus.STATE_SWEEPING and self._running:
                 frac = (time.monotonic() - self._phase_start) / self.sweep_duration_s
                 span = PROGRESS['estimating'] - PROGRESS['sweeping']
                 progress = PROGRESS['sweeping'] + span * min(max(frac, 0.0), 0.99)
             U = self.command_in_force()
             U = U if U is not None else run_.U
             msg = IterationStatus(
-                iteration=int(self._status_k), state=self._state,
-                progress=float(progress), samples=int(self._samples), message=self._message,
-                coverage=float(self._coverage), max_std=float(self._max_std),
+                iteration=int(self._status_k), state=state,
+                progress=float(progress), samples=int(samples), message=message,
+                coverage=float(coverage), max_std=float(max_std),
                 target=run_.target_spec, fan_names=self._fan_names,
                 pwm=[float(u) for u in U], rmse=float(run_.last_rmse),
                 run_folder=str(run_.store.folder))
@@ -573,7 +592,7 @@ class CoordinatorNode(Node):
             self._running = False
             self._counting = False
             sub, self._pose_sub = self._pose_sub, None
-        if sub is not None:
+        if sub is not None and not self._closing:
             self.destroy_subscription(sub)
         self._publish_status()   # the commands in force may have changed (an experiment: off)
 

@@ -312,7 +312,7 @@ class SimTunnel(Node):
             return response
         t_start = time.monotonic()
         try:
-            region = sweep_area(request)
+            region = sweep_area(request, self.live.geometry.sweep_radius)
             motion = self.live.start_sweep(request.duration_s, int(request.seed), region=region)
         except WindShaperError as exc:
             response.success = False
@@ -369,14 +369,42 @@ class SimTunnel(Node):
         return super().destroy_node()
 
 
-def sweep_area(request: Sweep.Request) -> SweepArea | None:
-    """A Sweep request's region (None: the whole disc); ConfigError says what is wrong with it."""
-    if len(request.region_x) == 0 and len(request.region_y) == 0:
+#: Most region points a Sweep request may give: a region is made of key points (317 on the paper's
+#: rig), and planning a path around K points costs K x K distances.
+MAX_REGION_POINTS = 2000
+#: Smallest region reach a Sweep request may give [m]: lanes are planned at a fraction of it, and
+#: a reach of a few micrometres planned a path without end (the shipped reach is 0.10 m).
+MIN_REGION_REACH_M = 0.01
+
+
+def sweep_area(request: Sweep.Request, radius: float) -> SweepArea | None:
+    """A Sweep request's region (None: the whole disc of ``radius`` [m]); ConfigError says what is
+    wrong with it: more than MAX_REGION_POINTS points, x and y of different lengths, a reach
+    outside [MIN_REGION_REACH_M, the disc's diameter], a point not finite or out of reach of
+    the disc."""
+    n_x, n_y = len(request.region_x), len(request.region_y)
+    if n_x == 0 and n_y == 0:
         return None
-    if len(request.region_x) != len(request.region_y):
-        raise ConfigError(f'the sweep region has {len(request.region_x)} x but {len(request.region_y)} '
+    if max(n_x, n_y) > MAX_REGION_POINTS:
+        raise ConfigError(f'the sweep region has {max(n_x, n_y)} points, more than the '
+                          f'{MAX_REGION_POINTS} a sweep plans around: send the key points the '
+                          f'region needs')
+    if n_x != n_y:
+        raise ConfigError(f'the sweep region has {n_x} x but {n_y} '
                           f'y values: give one (x, y) per region point')
-    return SweepArea(np.column_stack([request.region_x, request.region_y]), request.region_reach)
+    reach = float(request.region_reach)
+    if not MIN_REGION_REACH_M <= reach <= 2 * radius:
+        raise ConfigError(f'the sweep region needs reach > 0 m, within [{MIN_REGION_REACH_M:g}, '
+                          f'{2 * radius:g}] m (the sweep disc\'s diameter); got {reach!r}')
+    centres = np.column_stack([request.region_x, request.region_y])
+    far = ~np.isfinite(centres).all(axis=1) | (np.hypot(centres[:, 0], centres[:, 1]) > radius + reach)
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise ConfigError(f'{int(far.sum())} region point(s) are not finite or lie farther than '
+                          f'the reach from the sweep disc (radius {radius:g} m), e.g. '
+                          f'({request.region_x[i]!r}, {request.region_y[i]!r}): send points [m, '
+                          f'tunnel frame] inside the tunnel')
+    return SweepArea(centres, reach)
 
 
 def main(args=None) -> int:

@@ -14,6 +14,7 @@ import threading
 import time
 from typing import Callable
 
+from rclpy.exceptions import InvalidHandle
 from rclpy.task import Future
 
 #: Shortest interval between resends of an unanswered idempotent request [s].
@@ -102,8 +103,13 @@ class Waits:
             if cancellable:
                 with self._lock:
                     self._hooks.discard(hook)
-            timer.cancel()
-            self._node.destroy_timer(timer)
+            try:
+                timer.cancel()
+                self._node.destroy_timer(timer)
+            except InvalidHandle:
+                # the node was destroyed while this wait was pending (a shutdown): its timers
+                # went with it, and the coroutine is being closed, nothing more to free
+                pass
 
     def raise_for(self, reason: str, timeout_message: str) -> None:
         """Turn a wait's outcome other than 'done' into the caller's exception."""

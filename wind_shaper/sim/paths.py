@@ -15,6 +15,10 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..core.errors import ConfigError
 
+#: Most tours of the disc (or a region) one path is made of: a region's tours are short, and one
+#: far smaller than the lanes would never add up to the path's length.
+MAX_TOURS = 10_000
+
 
 def _resample(poly: np.ndarray, step: float, n: int) -> np.ndarray:
     """n points at constant arc-length ``step`` [m] along a polyline (m, 2); stops at its end."""
@@ -116,6 +120,10 @@ class TourPath:
             tours.append(tour)
             total += float(np.sum(np.hypot(*np.diff(tour, axis=0).T))) + (
                 2 * radius if region is None else region.reach)
+            if len(tours) > MAX_TOURS:   # a region far smaller than the lanes: no path ends
+                raise ConfigError(f'a path of {length:.3g} m needs more than {MAX_TOURS} tours '
+                                  f'of this region ({total:.3g} m so far): give a larger region '
+                                  f'or a shorter sweep')
         poly = _resample(np.vstack(tours), 0.1 * spacing, int((total + step) / (0.1 * spacing)) + 2)
         poly = gaussian_filter1d(poly, sigma=3.0, axis=0, mode='nearest')
         return _inside(_resample(poly, step, n), radius)

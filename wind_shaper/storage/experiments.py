@@ -13,7 +13,11 @@ Layout of ``<root>/<name>/``::
         flagged-1.npz/.json  a take that missed part of the area: kept, never used as data
 
 A row is *stored* (record.json), *flagged* (only flagged takes: sweep it again) or *pending*.
-Every file is written to a temporary name and renamed into place. Nothing here imports rclpy.
+Every file is written to a temporary name and renamed into place. An ``ExperimentStore`` reads
+the rows' states from the folder once, when it is opened, and keeps them up to date as it writes
+rows: a status published twice a second does not read a thousand row folders each time
+(``refresh`` reads them again, should another program have changed the folder). Nothing here
+imports rclpy.
 """
 from __future__ import annotations
 
@@ -94,6 +98,7 @@ class ExperimentStore:
 
     def __init__(self, folder: Path, plan: ExperimentPlan):
         self.folder, self.plan = folder, plan
+        self._states: list[str] | None = None   # the rows' states, read once (``states``)
 
     @staticmethod
     def is_experiment(folder) -> bool:
@@ -110,7 +115,9 @@ class ExperimentStore:
             stored = ExperimentPlan.from_yaml(marker)
             if plan is not None:
                 cls._check_same(folder, stored, plan)
-            return cls(folder, stored)
+            store = cls(folder, stored)
+            store.refresh()
+            return store
         if plan is None:
             raise RunFolderError(f'no experiment at {folder} (no {MARKER})')
         if (folder / 'run.yaml').is_file():
@@ -128,7 +135,9 @@ class ExperimentStore:
         write_design(folder / 'design.csv', Design(plan.fan_names, plan.commands, plan.labels,
                                                    plan.source))
         _atomic_write_text(marker, plan.to_yaml())  # last: its presence marks a complete folder
-        return cls(folder, plan)
+        store = cls(folder, plan)
+        store.refresh()
+        return store
 
     @staticmethod
     def _check_same(folder: Path, stored: ExperimentPlan, plan: ExperimentPlan) -> None:
@@ -162,13 +171,28 @@ class ExperimentStore:
                       key=lambda p: int(p.stem.split('-')[1]))
 
     def row_state(self, i: int) -> str:
+        """Row ``i``'s state as the folder holds it now (read from disk)."""
         d = self.row_dir(self._check_row(i))
         if (d / 'record.json').is_file():
             return STORED
         return FLAGGED if self._flagged_takes(i) else PENDING
 
+    def refresh(self) -> list[str]:
+        """Read every row's state from the folder again (one stat per row and a listing of its
+        flagged takes: about 50 ms for 1000 rows); returns them."""
+        self._states = [self.row_state(i) for i in range(len(self.plan))]
+        return list(self._states)
+
     def states(self) -> list[str]:
-        return [self.row_state(i) for i in range(len(self.plan))]
+        """Every row's state: read from the folder when the store was opened, then kept up to
+        date by ``write_sweep`` and ``write_flagged``; no disk access."""
+        if self._states is None:
+            return self.refresh()
+        return list(self._states)
+
+    def _mark(self, i: int, state: str) -> None:
+        if self._states is not None and not (state == FLAGGED and self._states[i] == STORED):
+            self._states[i] = state
 
     def pending(self) -> list[int]:
         """Rows still to sweep (flagged or never swept), in design order."""
@@ -202,6 +226,7 @@ class ExperimentStore:
         d.mkdir(parents=True, exist_ok=True)
         save_sweep(d / 'sweep.npz', sweep)
         _atomic_write_text(d / 'record.json', _json(self._info(i, sweep, info)))
+        self._mark(i, STORED)
         return d
 
     def write_flagged(self, i: int, sweep: Optional[Sweep], info: Mapping) -> Path:
@@ -216,6 +241,7 @@ class ExperimentStore:
             save_sweep(d / f'flagged-{n}.npz', sweep)
         path = d / f'flagged-{n}.json'
         _atomic_write_text(path, _json(self._info(i, sweep, info)))
+        self._mark(i, FLAGGED)
         return path
 
     def stored(self) -> list[StoredSweep]:

@@ -24,6 +24,8 @@ import json
 import os
 import shutil
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Optional, Sequence
@@ -32,6 +34,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import RunFolderError
+from ..core.limits import DEFAULT_LIMITS, Limits
 from ..core.safe_yaml import read_yaml_file
 from ..estimation import FieldEstimate
 from ..control import IterationRecord
@@ -64,10 +67,32 @@ def save_sweep(path: Path, sweep: Sweep) -> None:
     os.replace(tmp, path)
 
 
-def load_sweep(path: Path) -> Sweep:
-    """The sweep ``save_sweep`` wrote."""
-    with np.load(path) as z:
-        return Sweep(np.column_stack([z['x'], z['y']]), z['force'], z['t'], z['pwm'])
+#: The arrays a sweep's ``.npz`` holds.
+SWEEP_ARRAYS = ('t', 'x', 'y', 'force', 'pwm')
+
+
+def load_sweep(path: Path, limits: Limits = DEFAULT_LIMITS) -> Sweep:
+    """The sweep ``save_sweep`` wrote. ValueError, naming the file, when it is cut short, not an
+    archive ``save_sweep`` wrote, or would unpack to more than ``limits.file_bytes``;
+    OSError when it cannot be opened. Nothing in it is unpickled."""
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = archive.infolist()
+        unpacked = sum(m.file_size for m in members)
+        if unpacked > limits.file_bytes:
+            raise ValueError(f'{path.name} would unpack to {unpacked} bytes, more than '
+                             f'{limits.file_bytes} (limits.file_bytes)')
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in SWEEP_ARRAYS if k not in z.files]
+            if missing:
+                raise ValueError(f'{path.name} lacks the arrays {missing}')
+            return Sweep(np.column_stack([z['x'], z['y']]), z['force'], z['t'], z['pwm'])
+    except (EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as exc:
+        # a copy cut short, a disk error, another program's file: zipfile and numpy say so in
+        # their own words and kinds
+        raise ValueError(f'{path.name} is cut short or damaged ({type(exc).__name__}: '
+                         f'{str(exc)[:80]})') from None
 
 
 def folder_in(root, name: str, what: str) -> Path:
