@@ -298,13 +298,17 @@ class ShapingRun:
             U_next, restart = self.warm.next_commands(check, U_next)
             warm_info.update(restart)
         U_next = self.bounds.project(U_next, self.enabled)  # never outside the bounds
-        predicted = mean + J @ (U_next - U)
+        # what the rule itself predicts at its next commands (the adaptive rule's data-corrected
+        # prior); the prior's linear prediction for rules that say nothing, and for a restart
+        rmse_after = float(np.sqrt(np.mean((mean + J @ (U_next - U) - target_values) ** 2)))
+        if step.info.get('predicted_error') is not None and 'restart_next' not in warm_info:
+            rmse_after = float(np.sqrt(step.info['predicted_error']))
         stamps['finished'] = time.time()
         data = IterationData(
             k=k, target=self.target_spec, pwm_before=U, pwm_after=U_next,
             step_size=float(step.step_size),
             rmse=float(np.sqrt(np.mean((mean - target_values) ** 2))),
-            rmse_predicted_after=float(np.sqrt(np.mean((predicted - target_values) ** 2))),
+            rmse_predicted_after=rmse_after,
             estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
             timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
                                      'estimator_compute_s': float(answer.compute_s),
