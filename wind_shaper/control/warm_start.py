@@ -32,7 +32,8 @@ from .update import CommandBounds, UpdateInput
 MISMATCH_FACTOR = 3.0
 #: The prior's optimum is not this tunnel's when the first sweep's error [N^2] exceeds the
 #: promised error by more than this many times the prior's calibration error and the estimate's
-#: noise (both as variances per key point): the run then starts again wider.
+#: noise (both as variances per key point) while it leaves at least half the fans idle (what it
+#: claims of them is then untested): the run then starts again wider.
 PROMISE_FACTOR = 3.0
 
 
@@ -99,6 +100,8 @@ class WarmStart:
     notes: list = field(default_factory=list)
     target: np.ndarray | None = None
     start_U: np.ndarray | None = None
+    #: share of the enabled fans the warm start leaves idle (at u_min)
+    idle_share: float | None = None
 
     @property
     def on_bound(self) -> bool:
@@ -126,8 +129,14 @@ class WarmStart:
             measured = float(np.mean((mean - self.target) ** 2))
             promised = self.predicted_rmse ** 2
             allowed = promised + promise_factor * (self.model_error ** 2 + s2)
-            restart = bool(measured > allowed and self.start_U is not None
-                           and not np.allclose(self.start_U, self.U))
+            # a restart costs a sweep: only when the first sweep saw too few fans to correct
+            # the prior from (at least half the enabled fans idle at the prior's optimum, so
+            # what the prior claims of them is untested) and its error is far beyond the promise
+            idle = self.idle_share if self.idle_share is not None else 1.0
+            # ... and the field itself differs from the prediction by more than half of what
+            # calls a prior mismatched (a field within the prior's error is not a wrong basin)
+            restart = bool(measured > allowed and idle >= 0.5 and ratio > 0.5 * factor
+                           and self.start_U is not None and not np.allclose(self.start_U, self.U))
         return PredictionCheck(rms, expected, ratio, bool(ratio > factor), True, measured, promised,
                                allowed, restart)
 
@@ -192,7 +201,7 @@ def warm_start(model, key_points, target, bounds: CommandBounds, enabled, *, fan
     at_lower = tuple(nm for nm, u, e in zip(names, U, on) if e and u <= bounds.u_min + tol)
     ws = WarmStart(U, predicted, float(np.sqrt(np.mean((predicted - target) ** 2))),
                    float(model_error), rmse(U_start), at_upper, at_lower, target=target,
-                   start_U=U_start)
+                   start_U=U_start, idle_share=len(at_lower) / max(1, int(on.sum())))
     if at_upper:
         ws.notes.append(f'the prior\'s optimum puts {", ".join(at_upper)} at u_max = {bounds.u_max:g}: '
                         f'per the prior the target needs more than those fans give, so the run '
