@@ -166,7 +166,8 @@ class JetInteraction(Wrapper):
     ``follows='mean'`` (structural) puts the tunnel's mean thrust T_mean (over the enabled fans)
     in place of each pair's: T_i T_j -> T_mean^2, the same bridges filled by the whole
     tunnel's flow (recirculation, the plenum's pressure) rather than by the two jets. The
-    diagnosis checks a jet-interaction finding against that form (``Diagnosis._not_specific``)."""
+    diagnosis checks a jet-interaction finding against that form (the check ``specific`` of
+    ``wind_shaper.workbench.checks``)."""
 
     kind = 'jet_interaction'
     hypers = (Hyper('strength', 1, (0.0, 2.0)), Hyper('width', 1, (0.3, 3.0)))

@@ -7,7 +7,8 @@ effect it misses, add it, and watch the error fall.
 * where the model fails (``analyse_residuals``);
 * the candidate-effect library (``Library``; terms in ``wind_shaper.model``) and the
   diagnosis (``Diagnosis``: screening, refits, forward selection, a guard against spurious
-  findings, a check across sweeps before an effect is named, findings in plain words);
+  findings, the registered checks an effect must pass before it is named (``checks``), findings
+  in plain words);
 * the commissioned reference model (``commission``) the diagnosis measures changes against;
 * the closed loop on the simulator (``compare_closed_loop``) and reports (``Report``).
 
@@ -16,6 +17,7 @@ Pure Python (numpy, scipy, matplotlib): no rclpy. See docs/workbench.md.
 from .closed_loop import LoopComparison, compare_closed_loop
 from .data import (FitData, SweepSet, design_commands, from_bag, from_report, from_run_folder,
                    from_sim, load_sweeps)
+from .checks import CHECKS, Check, CheckResult, register_check
 from .consistency import SweepCheck, check_across_sweeps
 from .diagnose import Diagnosis, Trial, fit_mask
 from .errors import CandidateError, DataSourceError, FitError, WorkbenchError
@@ -26,7 +28,7 @@ from .reference import COMMISSIONING_PLAN, Reference, commission, commission_on,
 from .residuals import ResidualAnalysis, analyse_residuals
 
 __all__ = [
-    'SweepCheck', 'check_across_sweeps',
+    'SweepCheck', 'check_across_sweeps', 'CHECKS', 'Check', 'CheckResult', 'register_check',
     'SweepSet', 'FitData', 'design_commands', 'from_sim', 'from_bag', 'from_run_folder', 'from_report',
     'load_sweeps', 'fit_model', 'FitResult', 'Frozen', 'jackknife_std', 'HeldOut', 'Scores', 'scores',
     'evaluate', 'analyse_residuals', 'ResidualAnalysis', 'Candidate', 'Library', 'default_library',

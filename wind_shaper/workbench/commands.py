@@ -17,6 +17,7 @@ from ..core.config import parse_spec
 from ..core.geometry import TunnelGeometry
 from ..experiment import write_design
 from ..model import TERMS, Term, Wrapper, save_model, term_label, walk
+from .checks import CHECKS
 from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
 from .discrepancy import SCALE_FEATURES, describe_discrepancy, fit_discrepancy
@@ -243,6 +244,13 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
                       heading=f'{t.candidate.title} across sweeps, refitted jointly with a discrepancy '
                               f'model (mean {", ".join(f"{v:.4g}" for v in b.mean)}): '
                               + ('holds' if b.passed else 'refused: ' + '; '.join(b.reasons)))
+    if d.selected_:  # every check of each effect the selection added: passed, refused or not run
+        checked = d.steps_ + d.demoted_
+        titles = [f'{t.candidate.title} ({"reported" if t in d.steps_ else "not reported"})' for t in checked]
+        rep.table(['check', 'its question'] + titles,
+                  [[name, check.question] + [_check_cell(t.checks.get(name)) for t in checked]
+                   for name, check in CHECKS.items()],
+                  heading='Every check of each effect the selection added')
     every = data.fit_data(d.cell)  # all sweeps: the structure needs many commands
     analyses = {'before': analyse_residuals(d.baseline_.model, every, geometry)}
     if d.steps_:
@@ -257,6 +265,15 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
                    'truth': [e.spec() for e in truth]}
     rep.write(out)
     return d
+
+
+def _check_cell(result) -> str:
+    """A check's result for the report's table: 'passed', 'refused: why' or 'not run (why)'."""
+    if result is None:
+        return 'not run'
+    if result.passed is False:
+        return f'refused: {result.why}'
+    return result.state + (f' ({result.why})' if result.why else '')
 
 
 def _suggestion_section(rep: Report, s, out) -> None:

@@ -66,54 +66,55 @@ def _too_few(d, floor: float) -> Undecided | None:
     """An effect the selection added that the check refused only because too few training
     sweeps show it: the sweeps that would let the check run (the same share of them showing it,
     every third held out)."""
-    for t in sorted(d.demoted_, key=lambda t: t.bic):
+    for t in sorted(d.demoted, key=lambda t: t.bic):
         c = t.check
         if c is None or not c.too_few or c.heldout_short or t.gain < floor:
             continue
         shows = max(int(c.informative.sum()), 1)
-        train_needed = math.ceil(d.check_min_sweeps * len(c.informative) / shows)
-        recorded = len(d.train_sweeps_) + len(d.test_sweeps_)
+        train_needed = math.ceil(d.settings.check_min_sweeps * len(c.informative) / shows)
+        recorded = len(d.train_sweeps) + len(d.test_sweeps)
         more = max(2, math.ceil(train_needed * 1.5) - recorded)
         return Undecided(t, recorded, more if more <= MAX_MORE else None,
                          f'only {shows} of the {len(c.informative)} training sweeps show it, too few '
-                         f'to check that it holds across sweeps (needs {d.check_min_sweeps})')
+                         f'to check that it holds across sweeps (needs {d.settings.check_min_sweeps})')
     return None
 
 
 def undecided(d) -> Undecided | None:
-    """The best promising candidate of a fitted ``Diagnosis`` (see the module docstring), or None."""
-    if not d.rankings_ or d.low_spread_:
+    """The best promising candidate of a diagnosis's ``case.Case`` once its findings are checked
+    and what they leave is described (see the module docstring), or None."""
+    if not d.rankings or d.low_spread:
         return None
     # a candidate that explains much less than a pattern the library lacks is a patch of it
-    disc = getattr(d, 'discrepancy_', None)
+    disc = d.discrepancy
     floor = (RIVAL_SHARE * (1 - disc.heldout_after / disc.heldout_before)
              if disc is not None and disc.offered and disc.heldout_before > 0 else 0.0)
     few = _too_few(d, floor)
     if few is not None:
         return few
-    if len(d.rankings_) == len(d.selected_):
+    if len(d.rankings) == len(d.selected):
         return None  # the selection stopped with nothing material left, not for want of evidence
-    reported = {t.candidate.family for t in d.steps_}
-    patched = {f for t in d.demoted_ for f in t.candidate.fans}  # fans a refused patch was about
-    pool = [t for t in d.rankings_[-1] if t.stage == 'refined'
+    reported = {t.candidate.family for t in d.steps}
+    patched = {f for t in d.demoted for f in t.candidate.fans}  # fans a refused patch was about
+    pool = [t for t in d.rankings[-1] if t.stage == 'refined'
             and t.candidate.family not in reported and not t.passed
             and not set(t.candidate.fans) & patched
-            and t.gain >= max(0.5 * d.min_gain, floor) and t.dbic < 0]
+            and t.gain >= max(0.5 * d.settings.min_gain, floor) and t.dbic < 0]
     if not pool:
         return None
     best = min(pool, key=lambda t: t.bic)
-    recorded = len(d.train_sweeps_) + len(d.test_sweeps_)
+    recorded = len(d.train_sweeps) + len(d.test_sweeps)
     factor, why = 1.0, []
     z = z_from_null(best.params, best.std, best.candidate.null)
-    if z is not None and z < d.min_z:
-        factor = max(factor, (d.min_z / max(z, 1e-3)) ** 2)
-        why.append(f'its parameter is only {z:.1f} standard errors from no effect (needs {d.min_z:g})')
-    if best.dbic > -d.min_dbic:
-        factor = max(factor, d.min_dbic / max(-best.dbic, 1e-3))
-        why.append(f'the BIC falls only {-best.dbic:.1f} (needs {d.min_dbic:g})')
-    if best.gain < d.min_gain:
+    if z is not None and z < d.settings.min_z:
+        factor = max(factor, (d.settings.min_z / max(z, 1e-3)) ** 2)
+        why.append(f'its parameter is only {z:.1f} standard errors from no effect (needs {d.settings.min_z:g})')
+    if best.dbic > -d.settings.min_dbic:
+        factor = max(factor, d.settings.min_dbic / max(-best.dbic, 1e-3))
+        why.append(f'the BIC falls only {-best.dbic:.1f} (needs {d.settings.min_dbic:g})')
+    if best.gain < d.settings.min_gain:
         factor = max(factor, 4 / 3)
-        why.append(f'the held-out drop is below {100 * d.min_gain:.0f} %, which more held-out sweeps '
+        why.append(f'the held-out drop is below {100 * d.settings.min_gain:.0f} %, which more held-out sweeps '
                    f'can confirm or refute')
     if not why:
         return None

@@ -1,0 +1,149 @@
+"""The diagnosis's last stage: the verdict, and the words and the JSON of a diagnosed ``Case``.
+
+``word`` sets the verdict: 'found' (findings passed every check), 'explained' (the held-out model
+error was not material against the noise to begin with) or 'unexplained'. ``summary_text``
+writes it in plain words with the warnings about the data; ``checks_text`` lists every check's
+result for each finding; ``to_json`` is the diagnosis's part of summary.json. Forces [N].
+"""
+from __future__ import annotations
+
+from .checks import CHECKS
+from .formula import formula_text
+from .discrepancy import outside_text
+
+__all__ = ['word', 'summary_text', 'warnings', 'spread_warning', 'checks_text', 'to_json']
+
+
+def word(case):
+    """The stage: set ``case.verdict``."""
+    if case.steps:
+        case.verdict = 'found'
+    elif case.baseline_rmse < case.settings.material * case.noise_sd:
+        case.verdict = 'explained'
+    else:
+        case.verdict = 'unexplained'
+    return case
+
+
+def spread_warning(case) -> str:
+    """What is wrong with data whose commands barely vary, and what to record instead ('' when
+    they vary enough)."""
+    if not case.low_spread:
+        return ''
+    return (f'Warning: these sweeps were taken at nearly the same fan commands (command spread '
+            f'{100 * case.command_spread["median"]:.1f} % PWM: the median over the fans of the '
+            f'interquartile range of each fan\'s command across the sweeps; the diagnosis wants at '
+            f'least {100 * case.settings.min_spread:.0f} %), as in a shaping run that has converged. On such '
+            f'data per-fan effects (a fan\'s gain, width, landing point) are poorly identified: a '
+            f'held-out sweep at the same commands cannot tell an effect from a patch of the residual '
+            f'at this one operating point, so no finding is reported. Record instead 8-12 sweeps of '
+            f'~1000 samples at varied commands: each fan spread over its range independently of the '
+            f'others, the first and last with the fans off: on the node graph `wind-shaper collect '
+            f'--design lhs:12 --out NAME` does that (see docs/workbench.md, "Data").')
+
+
+def warnings(case) -> list[str]:
+    """The warnings about the data: commands that barely vary, forces and positions out of step."""
+    sync = case.sync.text() if case.sync is not None else ''
+    return [w for w in (spread_warning(case), sync) if w]
+
+
+def summary_text(case) -> str:
+    """The verdict in plain words, with the warnings."""
+    return _verdict_text(case) + ''.join(f'\n\n{w}' for w in warnings(case))
+
+
+def _verdict_text(case) -> str:
+    if case.verdict == 'explained':
+        return (f'Nothing to report: the model already explains these sweeps (held-out model error '
+                f'{case.baseline_rmse:.3f} N against measurement noise {case.noise_sd:.3f} N).')
+    undecided = case.undecided.text() if case.undecided is not None else None
+    if case.verdict == 'unexplained':
+        if case.low_spread:
+            return (f'No effect can be identified on these sweeps: the held-out model error is '
+                    f'{case.baseline_rmse:.3f} N (noise {case.noise_sd:.3f} N), but the sweeps\' '
+                    f'commands barely vary. See the residual\'s structure below.')
+        if case.demoted:
+            more = ' ' + _demoted_text(case)
+        else:
+            best = case.rankings[0][0] if case.rankings and case.rankings[0] else None
+            lowers = (f'lowers it by only {100 * best.gain:.0f} %' if best is not None and best.gain >= 0.005
+                      else 'does not lower it')
+            more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
+        return (f'No candidate explains the residual: the held-out model error stays at '
+                f'{case.baseline_rmse:.3f} N (noise {case.noise_sd:.3f} N).{more}'
+                + (' ' + undecided if undecided is not None else '')
+                + _outside_text(case) + ' See the residual\'s structure below.')
+    lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(case.steps)]
+    tail = f'\n{_demoted_text(case)}' if case.demoted else ''
+    return (f'Found {len(case.steps)} effect(s); held-out model error '
+            f'{case.baseline_rmse:.3f} N -> {case.final_rmse:.3f} N '
+            f'({100 * (1 - case.final_rmse / case.baseline_rmse):.0f} % lower):\n' + '\n'.join(lines)
+            + tail + ('\n' + undecided if undecided is not None else '')
+            + ('\n\nThe rest is still material.' + _outside_text(case)
+               if case.discrepancy is not None else ''))
+
+
+def _outside_text(case) -> str:
+    if case.discrepancy is None:
+        return ''
+    formula = formula_text(case.formula) if case.formula is not None else ''
+    return ' ' + (formula + ' ' if formula else '') + outside_text(case.discrepancy)
+
+
+def _demoted_text(case) -> str:
+    """'Partly explained by X, but not reported: ...' for effects that failed a check."""
+    parts = [f'{t.candidate.title} (it lowers the held-out error {100 * t.gain:.0f} %), but '
+             f'{"; ".join(t.reasons)}' for t in case.demoted]
+    patch = any(t.check is not None and t.check.spread for t in case.demoted)
+    return ('Partly explained by ' + '; and by '.join(parts)
+            + ('. So that is not reported as a finding: the physics is likely something the '
+               'library lacks.' if patch else '. So that is not reported as a finding yet.'))
+
+
+def checks_text(case) -> str:
+    """Every check and its result for each effect the selection added, in words: one line per
+    check under each finding (reported first, then those not reported)."""
+    out = []
+    for t in case.steps + case.demoted:
+        status = 'reported' if t in case.steps else 'not reported'
+        out.append(f'{t.candidate.title} ({status}):')
+        for name, check in CHECKS.items():
+            r = t.checks.get(name)
+            state = r.state if r is not None else 'not run'
+            why = f': {r.why}' if r is not None and r.why else ''
+            out.append(f'  - {name} ({check.question}) {state}{why}')
+    return '\n'.join(out)
+
+
+def to_json(case) -> dict:
+    """The diagnosis's part of summary.json."""
+    s = case.settings
+    return {
+        'verdict': case.verdict, 'summary': summary_text(case),
+        'noise_sd_N': case.noise_sd,
+        'train_sweeps': list(case.train_sweeps.labels), 'test_sweeps': list(case.test_sweeps.labels),
+        'baseline': {'model': repr(case.baseline.model), 'train_rmse_N': case.baseline.rmse,
+                     'heldout_model_rmse_N': case.baseline_rmse, 'heldout_raw_rmse_N': case.baseline_raw,
+                     'bic': case.baseline.bic},
+        'final': {'model': repr(case.final.model), 'train_rmse_N': case.final.rmse,
+                  'heldout_model_rmse_N': case.final_rmse, 'heldout_raw_rmse_N': case.final_raw},
+        'findings': [t.to_json() for t in case.steps],
+        'not_reported': [t.to_json() for t in case.demoted],
+        'discrepancy': case.discrepancy.to_json() if case.discrepancy is not None else None,
+        'formula': case.formula.to_json() if case.formula is not None else None,
+        'undecided': case.undecided.to_json() if case.undecided is not None else None,
+        'rankings': [[t.to_json() for t in r] for r in case.rankings],
+        'guard': {'min_gain': s.min_gain, 'min_dbic': s.min_dbic, 'min_z': s.min_z,
+                  'material': s.material, 'min_spread': s.min_spread},
+        'command_spread': {'median': round(case.command_spread['median'], 4),
+                           'per_fan': {k: round(v, 4) for k, v in case.command_spread['per_fan'].items()},
+                           'too_little': bool(case.low_spread)},
+        'clocks': ({'lag_s': round(case.sync.lag_s, 4), 'out_of_step': case.sync.out_of_step,
+                    'agree': round(case.sync.agree, 3), 'mse_drop': round(case.sync.drop, 4),
+                    'per_sweep_s': [round(float(x), 4) for x in case.sync.per_sweep]}
+                   if case.sync is not None else None),
+        'warnings': warnings(case),
+        'checks': [{'check': c.name, 'question': c.question, 'refusal': c.refusal,
+                    'setting': c.setting or None, 'stage': c.stage} for c in CHECKS.values()],
+    }
