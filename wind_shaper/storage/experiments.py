@@ -206,7 +206,13 @@ class ExperimentStore:
             takes = self._flagged_takes(i)
             path = record if record.is_file() else (takes[-1] if takes else None)
             if path is not None:
-                out[i] = float(json.loads(path.read_text()).get('coverage', np.nan))
+                try:
+                    value = json.loads(path.read_text()).get('coverage', np.nan)
+                    out[i] = float(value)
+                except (OSError, ValueError, TypeError, AttributeError, RecursionError) as exc:
+                    raise RunFolderError(f'row {i} of {self.folder}: {path.name} is not readable '
+                                         f'({type(exc).__name__}): move {path.parent} away to sweep '
+                                         f'it again') from None
         return out
 
     def _info(self, i: int, sweep: Optional[Sweep], info: Mapping) -> dict:
@@ -254,8 +260,10 @@ class ExperimentStore:
             try:
                 record = json.loads((d / 'record.json').read_text())
                 sweep = load_sweep(d / 'sweep.npz')
-            except (OSError, ValueError, KeyError) as exc:
-                raise RunFolderError(f'row {i} of {self.folder} is not readable ({exc}): move '
+            except (OSError, ValueError, KeyError, RecursionError) as exc:
+                # RecursionError: a record nested too deep for the parser (quoted by kind only)
+                reason = type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:200]
+                raise RunFolderError(f'row {i} of {self.folder} is not readable ({reason}): move '
                                      f'{d} away to sweep it again') from None
             out.append(StoredSweep(i, self.plan.labels[i], sweep, record))
         return out

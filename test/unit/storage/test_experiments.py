@@ -133,3 +133,16 @@ def test_states_are_read_from_the_folder_once_and_kept_up_to_date_by_the_writes(
     # what the folder holds agrees, read afresh
     assert ExperimentStore.open(tmp_path, 'e').states() == store.states()
     assert store.refresh() == store.states() and len(reads) == 12
+
+
+@pytest.mark.parametrize('reader', ['stored', 'coverage'])
+def test_a_record_nested_too_deep_is_a_run_folder_error(tmp_path, reader):
+    """json raised RecursionError out of the reader on a record.json of 100,000 nested lists."""
+    p = plan()
+    store = ExperimentStore.open(tmp_path, 'e', p)
+    store.write_sweep(0, sweep(p.commands[0]), {'coverage': 1.0})
+    (store.row_dir(0) / 'record.json').write_text('[' * 100_000 + ']' * 100_000)
+    with pytest.raises(RunFolderError) as refused:
+        getattr(ExperimentStore.open(tmp_path, 'e'), reader)()
+    assert 'row 0' in str(refused.value) and 'move' in str(refused.value)
+    assert len(str(refused.value)) < 400
