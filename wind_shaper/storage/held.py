@@ -45,8 +45,9 @@ class HeldBatch:
         if path.is_file():
             try:
                 stored = json.loads(path.read_text())
-            except (OSError, ValueError) as exc:
-                raise RunFolderError(f'{path} is not readable ({exc}): move {folder} away') from None
+            except (OSError, ValueError, RecursionError) as exc:
+                why = type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:200]
+                raise RunFolderError(f'{path} is not readable ({why}): move {folder} away') from None
             if stored != doc:
                 raise RunFolderError(f'the batch {folder} holds other points (another plan or '
                                      f'tunnel): choose another --batch name to start a new one')
@@ -66,7 +67,9 @@ class HeldBatch:
             for line in path.read_text().splitlines():
                 try:
                     rec = json.loads(line)
-                except ValueError:   # a line cut by a crash: that point is simply not done
+                except (ValueError, RecursionError):   # a line cut by a crash: that point is simply not done
+                    continue
+                if not isinstance(rec, dict) or 'label' not in rec:
                     continue
                 out[rec['label']] = rec
         return out

@@ -152,6 +152,12 @@ class RunInfo:
                                  f'folder away or choose another run name') from None
 
 
+def _why(exc: BaseException) -> str:
+    """A short reason for a refused file: a parser's recursion by its kind only, else the
+    message's first 200 characters."""
+    return type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:200]
+
+
 @dataclass(frozen=True)
 class RunState:
     """``state.json``: last_completed k (-1 before the first iteration), next_pwm (n_fans,)
@@ -176,8 +182,8 @@ class RunState:
             doc = json.loads(path.read_text())
             return cls(int(doc['last_completed']), np.asarray(doc['next_pwm'], dtype=float),
                        str(doc['target']), float(doc.get('updated_at', 0.0)))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise RunFolderError(f'{path} is not a readable run state ({exc}): restore it from a '
+        except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
+            raise RunFolderError(f'{path} is not a readable run state ({_why(exc)}): restore it from a '
                                  f'backup or start a new run name') from None
 
 
@@ -356,8 +362,8 @@ class RunStore:
         path = self.iteration_dir(k) / 'record.json'
         try:
             return json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise RunFolderError(f'{path} is not readable ({exc})') from None
+        except (OSError, ValueError, RecursionError) as exc:
+            raise RunFolderError(f'{path} is not readable ({_why(exc)})') from None
 
     def load_history(self) -> list[IterationRecord]:
         """Every completed iteration as a ``control.IterationRecord`` (what
@@ -370,8 +376,8 @@ class RunStore:
             try:
                 fld = json.loads((folder / 'field.json').read_text())
                 sweep = load_sweep(folder / 'sweep.npz')
-            except (OSError, ValueError, KeyError) as exc:
-                raise RunFolderError(f'{folder} is incomplete ({exc}): the run folder was edited '
+            except (OSError, ValueError, KeyError, RecursionError) as exc:
+                raise RunFolderError(f'{folder} is incomplete ({_why(exc)}): the run folder was edited '
                                      f'by hand or damaged') from None
             est = FieldEstimate(kp, np.asarray(fld['mean_N']), np.asarray(fld['std_N']),
                                 np.asarray(fld['key_distance_m']), int(fld['n_used']))

@@ -305,9 +305,10 @@ def from_report(folder) -> SweepSet:
     folder = Path(folder)
     try:
         doc = json.loads((folder / 'run.json').read_text())
-        data = np.load(folder / 'sweeps.npz')
-    except (OSError, ValueError) as exc:
-        raise DataSourceError(f'{folder} is not a shape report folder ({exc})') from None
+        data = np.load(folder / 'sweeps.npz', allow_pickle=False)
+    except (OSError, ValueError, EOFError, RecursionError) as exc:
+        why = type(exc).__name__ if isinstance(exc, RecursionError) else str(exc)[:200]
+        raise DataSourceError(f'{folder} is not a shape report folder ({why})') from None
     ks = sorted({key.split('_')[0] for key in data.files})
     sweeps = tuple(Sweep(data[f'{k}_positions'], data[f'{k}_forces'], data[f'{k}_times'], data[f'{k}_pwm'])
                    for k in ks)

@@ -194,3 +194,14 @@ def test_bad_names_and_foreign_folders_are_refused(tmp_path, info):
     (tmp_path / 'broken' / 'run.yaml').write_text('just text')
     with pytest.raises(RunFolderError, match='not a readable run description'):
         RunStore.open(tmp_path, 'broken', info)
+
+
+@pytest.mark.parametrize('name', ['record.json', 'field.json'])
+def test_an_iteration_file_nested_too_deep_is_a_run_folder_error(tmp_path, info, sim, name):
+    """json raised RecursionError out of load_history on a file of 100,000 nested lists."""
+    store = RunStore.open(tmp_path, 'r', info, initial_pwm=np.full(7, 0.5))
+    store.write_iteration(iteration(sim, 0, np.full(7, 0.5), np.full(7, 0.45)))
+    (store.iteration_dir(0) / name).write_text('[' * 100_000 + ']' * 100_000)
+    with pytest.raises(RunFolderError) as refused:
+        RunStore.open(tmp_path, 'r', info).load_history()
+    assert 'RecursionError' in str(refused.value) and len(str(refused.value)) < 400
