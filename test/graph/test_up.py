@@ -83,15 +83,15 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
 def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     # the simulated plate would sweep for 20 s; the coordinator watches the estimate (coverage
     # and largest std, live in its status) and ends the sweep through the stop service. The
-    # shipped threshold (1.2 x the noise floor, 0.060 N) is met about when a 20 s tour ends (once
-    # 0.062 N at its end on a loaded machine): this test's config asks for 1.6 x, so what is
-    # tested is the ending, not how small the std gets
+    # shipped threshold (2.0 x the noise floor, 0.10 N) is met on the parabola's high forces
+    # about when a 20 s tour ends: this test's config asks for 3.0 x, so what is tested is the
+    # ending, not how small the std gets
     config = tmp_path / 'config'
     shutil.copytree(ROOT / 'config', config)
     shaping = config / 'shaping.yaml'
     text = shaping.read_text()
-    assert 'std_factor: 1.2 ' in text
-    shaping.write_text(text.replace('std_factor: 1.2 ', 'std_factor: 1.6 '))
+    assert 'std_factor: 2.0 ' in text
+    shaping.write_text(text.replace('std_factor: 2.0 ', 'std_factor: 3.0 '))
     u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
            '--set', 'coordinator.sweep_duration_s=20.0', '--set', 'coordinator.sweep_min_s=3.0',
            '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3',
