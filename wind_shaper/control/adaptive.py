@@ -77,7 +77,10 @@ class AdaptiveUpdate:
     from trading large opposite moves); idle_below [fraction]: a command below this is sent as
     u_min (an ESC does not turn a propeller that slowly; with u_min = 0 the feasible set is
     {0} and [idle_below, u_max]); inner_iterations: Gauss-Newton passes on the nonlinear model
-    per step; stop_factor, stop_patience: the ``StoppingRule``.
+    per step; stop_factor, stop_patience: the ``StoppingRule``; fit_points: how many
+    independent key points one map counts as in the per-fan fit (a map's GP estimates are
+    strongly correlated; None: every key point counts); relearn: learn again from the newest
+    map when it contradicts the earlier ones (``chain``).
     """
 
     bounds: CommandBounds = CommandBounds()
