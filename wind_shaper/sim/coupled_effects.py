@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .effects import HIDDEN_EFFECTS, HiddenEffect
+from .effects import HiddenEffect, register_effects
 from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
@@ -80,9 +80,6 @@ class RecirculationCore(HiddenEffect):
                                   np.array([w]), np.full(1, -1))]
 
 
-for _cls in (SupplySag, RecirculationCore):
-    if _cls.name in HIDDEN_EFFECTS and HIDDEN_EFFECTS[_cls.name] is not _cls:
-        raise EffectError(f'hidden effect name {_cls.name!r} is taken')
-    HIDDEN_EFFECTS[_cls.name] = _cls
+register_effects(SupplySag, RecirculationCore)
 
 __all__ = ['SupplySag', 'RecirculationCore']

@@ -336,6 +336,15 @@ HIDDEN_EFFECTS: dict[str, type[HiddenEffect]] = {
                               TiltedFan, ElongatedFootprint, BackgroundDraft)}
 
 
+def register_effects(*classes: type[HiddenEffect]) -> None:
+    """Add effect classes to ``HIDDEN_EFFECTS`` under their config names (a name already taken
+    by another class is an EffectError)."""
+    for cls in classes:
+        if cls.name in HIDDEN_EFFECTS and HIDDEN_EFFECTS[cls.name] is not cls:
+            raise EffectError(f'hidden effect name {cls.name!r} is taken')
+        HIDDEN_EFFECTS[cls.name] = cls
+
+
 def make_effect(name: str, **params) -> HiddenEffect:
     """Build a hidden effect by registry name (``weak_fan``) or class name (``WeakFan``)."""
     by_class = {cls.__name__: cls for cls in HIDDEN_EFFECTS.values()}

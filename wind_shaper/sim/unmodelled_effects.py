@@ -19,7 +19,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.geometry import neighbour_pairs
 from ..core.tunnel import path_at
-from .effects import HIDDEN_EFFECTS, HiddenEffect, JetInteraction, Swirl
+from .effects import HiddenEffect, JetInteraction, Swirl, register_effects
 from .errors import EffectError
 from .physics import FlatTop, JetGroup
 
@@ -653,7 +653,5 @@ OTHER_FORM = (QuadraticSwirl, MergingJets)
 #: Plant variations for benchmarks (not in the workbench's detection table yet).
 PLANT_VARIATIONS = (UnequalCurves,)
 
-for _cls in OUTSIDE_LIBRARY + OUTSIDE_FRESH + OUTSIDE_SECOND + OUTSIDE_THIRD + OTHER_FORM + PLANT_VARIATIONS:
-    if _cls.name in HIDDEN_EFFECTS and HIDDEN_EFFECTS[_cls.name] is not _cls:
-        raise EffectError(f'hidden effect name {_cls.name!r} is taken')
-    HIDDEN_EFFECTS[_cls.name] = _cls
+register_effects(*OUTSIDE_LIBRARY, *OUTSIDE_FRESH, *OUTSIDE_SECOND, *OUTSIDE_THIRD, *OTHER_FORM,
+                 *PLANT_VARIATIONS)
