@@ -3,10 +3,14 @@
 The paper sweeps 1000 samples (20 s) every iteration whatever the estimate needs. Here the plate
 sweeps on in chunks and the field is estimated after each one past a hard minimum; the sweep ends
 as soon as every key point has been passed (coverage 1.0 at the estimator's ``max_gap``) and the
-GP's posterior standard deviation at every key point is below ``std_max``. That threshold is tied
-to the update's stopping rule: ``std_factor`` x its noise floor, the error a sweep is taken to
-resolve at best; estimating finer than that buys the next step nothing. ``samples_per_sweep``
-stays the longest a sweep may last.
+GP's posterior standard deviation, as an RMS over the key points, is below ``std_max``. That
+threshold is tied to the update's stopping rule: ``std_factor`` x its noise floor, the error a
+sweep is taken to resolve at best; estimating finer than that buys the next step nothing. The
+RMS, not the largest std, because the update and the stopping rule see the estimate's noise as
+mean(std^2) over the key points: where the turbulence grows with the force, the few key points
+under the strongest jets would otherwise hold every sweep to its longest for a gain the step
+never sees. No key point may exceed ``worst_factor`` x the threshold (a spot the plate barely
+passed). ``samples_per_sweep`` stays the longest a sweep may last.
 
 Samples are counted at the tunnel's sample rate (the rig: 50 Hz, so 50 samples = 1 s of plate
 time); forces and standard deviations [N].
@@ -27,16 +31,19 @@ from .region import SweepRegion
 @dataclass(frozen=True)
 class SweepProgress:
     """Where a sweep stands: samples so far, share of key points passed [0..1], the largest
-    posterior std at a key point [N] (NaN before an estimate), and whether it may end."""
+    posterior std at a key point and its RMS over the key points [N] (NaN before an estimate),
+    and whether it may end."""
 
     n_samples: int
     coverage: float
     std_max: float
     enough: bool
+    std_rms: float = float('nan')
 
     def text(self) -> str:
-        std = '-' if not np.isfinite(self.std_max) else f'{self.std_max:.3f} N'
-        return f'{self.n_samples} samples, coverage {100 * self.coverage:.0f} %, largest std {std}'
+        std = ('-' if not np.isfinite(self.std_max) else
+               f'{self.std_rms:.3f} N RMS, largest {self.std_max:.3f} N')
+        return f'{self.n_samples} samples, coverage {100 * self.coverage:.0f} %, std {std}'
 
 
 @dataclass(frozen=True)
@@ -44,13 +51,15 @@ class SweepLength:
     """adaptive: end a sweep early when the estimate is good enough (False: always the full
     ``samples_per_sweep``); min_samples: never fewer (keeps coverage honest: a plate that
     lingers near the key points must still cross the area); chunk_samples: estimate again after
-    every this many samples; std_factor: the largest posterior std allowed at a key point, as a
-    multiple of the stopping rule's noise floor [N]."""
+    every this many samples; std_factor: the largest RMS over the key points of the posterior
+    std, as a multiple of the stopping rule's noise floor [N]; worst_factor: no key point's std
+    above this many times that threshold."""
 
     adaptive: bool = True
     min_samples: int = 300
     chunk_samples: int = 50
     std_factor: float = 1.2
+    worst_factor: float = 2.0
     #: an interim estimate reuses the hyperparameters fitted at the sweep's first estimate
     #: until the sweep has grown to this many times the samples they were fitted on (then
     #: they are fitted again): one or two fits per sweep instead of one per chunk
@@ -76,6 +85,9 @@ class SweepLength:
             raise ConfigError(f'shaping.sweep.refit_growth must be >= 1; got {self.refit_growth!r}')
         if not self.std_factor > 0:
             raise ConfigError(f'shaping.sweep.std_factor must be > 0; got {self.std_factor!r}')
+        if not (isinstance(self.worst_factor, (int, float)) and self.worst_factor >= 1):
+            raise ConfigError(f'shaping.sweep.worst_factor must be >= 1 (a multiple of the RMS '
+                              f'threshold); got {self.worst_factor!r}')
         if self.region is not None and not isinstance(self.region, (Mapping, SweepRegion)):
             raise ConfigError(f'shaping.sweep.region must be a section (enabled, change_error, '
                               f'min_share, max_share, reach); got {self.region!r}')
@@ -94,6 +106,15 @@ class SweepLength:
         stopping = getattr(rule, 'stopping', None)
         floor = getattr(stopping, 'floor', 0.05) if stopping is not None else 0.05
         return self.std_factor * float(floor)
+
+    def good_enough(self, std, threshold: float) -> tuple[float, float, bool]:
+        """(RMS over the key points, largest, enough) of a field estimate's std (N,) [N]
+        against ``threshold`` (``std_max``) [N]."""
+        std = np.asarray(std, dtype=float)
+        if std.size == 0 or not np.all(np.isfinite(std)):
+            return float('nan'), float('nan'), False
+        rms, worst = float(np.sqrt(np.mean(std ** 2))), float(np.max(std))
+        return rms, worst, bool(rms <= threshold and worst <= self.worst_factor * threshold)
 
 
 class SweepMonitor:
@@ -149,8 +170,8 @@ class SweepMonitor:
             self.estimate = self.estimate_now(sweep)
         except SweepError:
             return SweepProgress(self.n, self.coverage.share, float('nan'), False)
-        worst = float(np.max(self.estimate.std))
-        return SweepProgress(self.n, self.coverage.share, worst, worst <= self.std_max)
+        rms, worst, enough = self.policy.good_enough(self.estimate.std, self.std_max)
+        return SweepProgress(self.n, self.coverage.share, worst, enough, rms)
 
 
 def fused_estimate(estimator, sweep, key_points, plan, reuse=None):

@@ -106,7 +106,8 @@ def test_a_sweep_ends_once_every_key_point_is_passed_and_the_estimate_is_good_en
     n = len(rec.sweep)
     assert policy.min_samples <= n < setup.shaping.samples_per_sweep
     assert seen[-1].enough and seen[-1].coverage == 1.0 and seen[-1].n_samples == n
-    assert seen[-1].std_max <= policy.std_max(loop.rule)
+    threshold = policy.std_max(loop.rule)
+    assert seen[-1].std_rms <= threshold and seen[-1].std_max <= policy.worst_factor * threshold
     assert not any(p.enough for p in seen[:-1])       # it ended at the first chance
     assert rec.plate_s == pytest.approx(n / 50.0)     # 50 Hz
     # the samples are the first n of the full sweep with the same draws
@@ -130,7 +131,8 @@ def test_tunnel_time_is_counted_per_iteration_and_in_total(setup):
 
 
 @pytest.mark.parametrize('bad, words', [({'min_samples': 5}, 'min_samples'), ({'chunk_samples': 0}, 'chunk_samples'),
-                                        ({'std_factor': 0.0}, 'std_factor')])
+                                        ({'std_factor': 0.0}, 'std_factor'),
+                                        ({'worst_factor': 0.5}, 'worst_factor')])
 def test_bad_sweep_settings_are_named(bad, words):
     with pytest.raises(ConfigError, match=words):
         SweepLength(**bad)
