@@ -166,7 +166,7 @@ class ShapingLoop:
             if progress.enough:
                 return applied, Sweep.concatenate(parts), monitor.estimate, region_record(plan, monitor.consistency)
         sweep = Sweep.concatenate(parts)   # the longest sweep: estimated whatever its std
-        estimate = monitor.estimate_now(sweep)
+        estimate = monitor.final_estimate(sweep)
         return applied, sweep, estimate, region_record(plan, monitor.consistency)
 
     def iterate(self, update: bool = True) -> IterationRecord:

@@ -119,7 +119,7 @@ class SweepLength:
 
 class SweepMonitor:
     """Follows one sweep as its samples arrive: coverage of the key points, and (past the
-    minimum, at full coverage) the estimate's largest std. ``add(positions)`` then ``check()``.
+    minimum, at full coverage) the estimate's std. ``add(positions)`` then ``check()``.
 
     plan: a ``control.region.RegionPlan`` when only its region is swept: coverage counts its
     needed key points, the minimum shrinks with its share, and the estimate is fused with what
@@ -140,6 +140,10 @@ class SweepMonitor:
         self.fitted = None   # (the estimate whose hyperparameters interim estimates reuse, its sweep's length)
         #: an earlier sweep's estimate whose hyperparameters every estimate of this sweep reuses
         self.reuse = reuse
+        #: samples the last estimate was made from, and the count before which another one is
+        #: unlikely to be good enough (``check``)
+        self.estimated_at = 0
+        self.next_check = 0
 
     def add(self, positions) -> None:
         positions = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -164,14 +168,28 @@ class SweepMonitor:
     def check(self, sweep) -> SweepProgress:
         """Progress after the samples of ``sweep`` (everything so far); estimates the field when
         the minimum is reached and every key point is passed."""
-        if self.n < self.min_samples or self.coverage.share < 1.0:
-            return SweepProgress(self.n, self.coverage.share, float('nan'), False)
+        if self.n < max(self.min_samples, self.next_check) or self.coverage.share < 1.0:
+            last = (float('nan'),) * 2 if self.estimate is None else \
+                self.policy.good_enough(self.estimate.std, self.std_max)[:2]
+            return SweepProgress(self.n, self.coverage.share, last[1], False, last[0])
         try:
             self.estimate = self.estimate_now(sweep)
         except SweepError:
             return SweepProgress(self.n, self.coverage.share, float('nan'), False)
+        self.estimated_at = len(sweep)
         rms, worst, enough = self.policy.good_enough(self.estimate.std, self.std_max)
+        if not enough and np.isfinite(rms) and rms > self.std_max:
+            # the std falls about as 1 / sqrt(samples): skip the estimates that cannot be good
+            # enough yet (80 % of the predicted count, as gusts and uneven coverage slow it)
+            self.next_check = int(0.8 * self.n * (rms / self.std_max) ** 2)
         return SweepProgress(self.n, self.coverage.share, worst, enough, rms)
+
+    def final_estimate(self, sweep):
+        """The estimate of the whole of ``sweep`` (the one ``check`` just made if it saw all of
+        it)."""
+        if self.estimate is not None and self.estimated_at == len(sweep):
+            return self.estimate
+        return self.estimate_now(sweep)
 
 
 def fused_estimate(estimator, sweep, key_points, plan, reuse=None):
