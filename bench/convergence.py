@@ -347,9 +347,14 @@ def main(argv=None):
     ap.add_argument('--targets', default=None, help='only these targets (comma-separated)')
     ap.add_argument('--source', choices=('plate', 'static'), default='plate',
                     help='measurement source: the moving plate (default) or the static sensor grid')
+    ap.add_argument('--summary-from', default=None, metavar='JSON',
+                    help='print the summary table of an earlier results file (the one in the README) and exit')
     ap.add_argument('--zeta-cache', default=None,
                     help='JSON file to read/write zeta* per case (skips the optimisation when present)')
     args = ap.parse_args(argv)
+    if args.summary_from:
+        print_summary(json.loads(Path(args.summary_from).read_text())['cases'])
+        return
     if args.json is None:
         stem = 'convergence' if args.source == 'plate' else f'convergence_{args.source}'
         args.json = f'bench/out/{stem}_quick.json' if args.quick else f'bench/out/{stem}.json'
@@ -515,6 +520,30 @@ def print_warm_checks(rows):
             flat = f'- | {k_m} | -'
         print(f"| {row['case']} | {flat} | {m['restarts']} | {m['relearned']} | "
               f"{m['z_rms']:.2f} | {100 * m['z_outside_2sigma']:.1f} % |")
+
+
+def print_summary(rows, ks=(0, 1, 2, 4, 12)):
+    """One line per case: the shipped default, the flat start and the paper's rule at ``ks``;
+    the shipped default's plate seconds to 5 % (the flat start's); its z RMS and share outside
+    2 sigma; CPU ms per iteration."""
+    def ratios(m):
+        r = m['median_ratio']
+        return ' / '.join(f'{r[k]:.2f}' for k in ks if k < len(r))
+
+    def secs(m):
+        v = m['plate_s_to_5pct_median']
+        return '-' if not np.isfinite(v) else f'{v:.0f}'
+    print('| case | shipped (warm start) k=' + ' / '.join(map(str, ks)) + ' | flat start | paper | '
+          'shipped plate s to 5 % (flat) | z RMS | outside 2 sigma | CPU ms/it |')
+    print('|---|---|---|---|---|---|---|---|')
+    for row in rows:
+        m = row['methods']
+        s, f, p = m.get(SHIPPED), m.get('flat'), m.get('paper')
+        if s is None:
+            continue
+        print(f"| {row['case']} | {ratios(s)} | {ratios(f) if f else '-'} | {ratios(p) if p else '-'} | "
+              f"{secs(s)} ({secs(f) if f else '-'}) | {s['z_rms']:.2f} | "
+              f"{100 * s['z_outside_2sigma']:.1f} % | {s['cpu_ms_median']:.0f} |")
 
 
 if __name__ == '__main__':

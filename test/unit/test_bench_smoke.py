@@ -56,3 +56,12 @@ def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch):
         args += ['--zeta-cache', str(cache)]
     module.main(args)
     assert out.is_file() and json.loads(out.read_text())
+
+
+def test_the_convergence_summary_table_comes_from_the_results_file(tmp_path, capsys):
+    """The README's table is printed from the committed results file, one row per case."""
+    results = BENCH / 'out' / 'convergence.json'
+    load_bench('convergence').main(['--summary-from', str(results)])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith('| ')]
+    cases = json.loads(results.read_text())['cases']
+    assert len(rows) == 1 + len(cases) and rows[1].startswith(f"| {cases[0]['case']} |")
