@@ -14,7 +14,6 @@ forces [N]; times [s].
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable, Protocol, Sequence
 
