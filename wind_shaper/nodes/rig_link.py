@@ -121,7 +121,7 @@ class RigLink:
         watched = not self.node.collect.active
         if self._sweep_client is not None:
             self.node.set_state(IterationStatus.STATE_SWEEPING,
-                           f'{doing}: sweeping {where} for {duration:g} s{again}')
+                                f'{doing}: sweeping {where} for {duration:g} s{again}')
             what = 'the sweep (sim_tunnel or motion stage)'
             if not watched:
                 moved = await self._call(self._sweep_client, request, what,
@@ -133,11 +133,11 @@ class RigLink:
                                        f'the sweep failed: {moved.message}')
         else:
             self.node.set_state(IterationStatus.STATE_SWEEPING,
-                           f'{doing}: move the plate over {where} now ({duration:g} s){again}')
+                                f'{doing}: move the plate over {where} now ({duration:g} s){again}')
             if watched:
                 if await self._watch_sweep(k, duration, None, plan):
                     self.node.set_state(IterationStatus.STATE_SWEEPING,
-                                   f'{doing}: enough samples, you can stop sweeping')
+                                        f'{doing}: enough samples, you can stop sweeping')
             else:
                 await self._waits.wait(None, self._waits.remaining(duration))
             self.check_boundary()

@@ -100,5 +100,6 @@ def test_the_answer_succeeds_only_when_done_with_every_row_stored(setup, tmp_pat
     assert answer['message'] == '2 of 4; the fans are off' and answer['labels'] == list(exp.design.labels)
     done = collect_answer('done', '', exp, [STORED] * 4, [1.0] * 4, 'all')
     assert done['success'] and done['run_folder'] == str(exp.folder)
-    cancelled = collect_answer('cancelled', 'experiment cancelled: by you; ', exp, [STORED] * 4, [1.0] * 4, 'all')
+    cancelled = collect_answer('cancelled', 'experiment cancelled: by you; ', exp, [STORED] * 4,
+                               [1.0] * 4, 'all')
     assert not cancelled['success'] and cancelled['message'].startswith('experiment cancelled: by you; all')
