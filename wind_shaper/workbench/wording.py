@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['drop_text', 'pct_text', 'values_text']
+__all__ = ['drop_text', 'fixed_text', 'pct_text', 'values_text']
 
 
 def _change_text(gain: float) -> str:
@@ -42,3 +42,8 @@ def values_text(value) -> str:
     """A parameter's value(s), 3 significant digits: '0.955' or '(0.047, -0.003)'."""
     v = np.atleast_1d(np.asarray(value, float))
     return f'{v[0]:.3g}' if len(v) == 1 else '(' + ', '.join(f'{x:.3g}' for x in v) + ')'
+
+
+def fixed_text(x: float, digits: int = 3) -> str:
+    """A number with ``digits`` decimals, as the reports' tables show errors: '0.123'."""
+    return f'{x:.{digits}f}'
