@@ -58,8 +58,9 @@ def sweep_span(plan: RegionPlan | None, duration_s: float, sweep_min_s: float,
 
 
 def peek_figures(positions: np.ndarray | None, success: bool, mean, std, key_points: np.ndarray,
-                 radius: float, plan: RegionPlan | None = None) -> tuple[float, float]:
-    """(coverage [0..1] or NaN, largest std [N] or NaN) of a sweep so far, from the plate
+                 radius: float, plan: RegionPlan | None = None) -> tuple[float, float, float]:
+    """(coverage [0..1] or NaN, largest std [N] or NaN, RMS of the std over the key points [N] or
+    NaN) of a sweep so far, from the plate
     ``positions`` (n, 2) the estimator holds (None: none yet) and its peek estimate (``success``,
     ``mean``, ``std`` at every key point). A region sweep counts its own key points and judges
     the std fused with what it carries over. ``radius`` [m]: how near a key point counts as
@@ -69,41 +70,46 @@ def peek_figures(positions: np.ndarray | None, success: bool, mean, std, key_poi
     if positions is not None:
         coverage = coverage_share(positions, kp, radius)
     if not (success and len(std)):
-        return coverage, math.nan
+        return coverage, math.nan, math.nan
     std = np.asarray(std, dtype=float)
     if plan is not None:
         std = plan.fuse(np.asarray(mean, dtype=float), std)[1]
-    return coverage, float(np.max(std))
+    return coverage, float(np.max(std)), float(np.sqrt(np.mean(std ** 2)))
 
 
 @dataclass(frozen=True)
 class SweepJudge:
     """Whether a sweep may end early: ``adaptive`` on, at least ``min_s`` [s] swept, every key
-    point passed and the largest std at most ``std_max`` [N]."""
+    point passed, the RMS of the std over the key points at most ``std_max`` [N] and no key
+    point's std above ``worst_factor`` x ``std_max`` (``control.sweep_length.SweepLength``)."""
 
     adaptive: bool
     min_s: float
     std_max: float
+    worst_factor: float = 2.0
 
-    def verdict(self, k: int, elapsed_s: float, coverage: float, max_std: float) -> str:
-        """'' while the sweep must go on, else what to log as it ends."""
+    def verdict(self, k: int, elapsed_s: float, coverage: float, max_std: float,
+                rms_std: float | None = None) -> str:
+        """'' while the sweep must go on, else what to log as it ends (``rms_std`` None: the
+        largest std stands for it)."""
+        rms = max_std if rms_std is None else rms_std
         if not (self.adaptive and elapsed_s >= self.min_s and coverage >= 1.0
-                and max_std <= self.std_max):
+                and rms <= self.std_max and max_std <= self.worst_factor * self.std_max):
             return ''
         return (f'iteration {k}: the estimate is good enough after {elapsed_s:.1f} s (coverage '
-                f'{100 * coverage:.0f} %, largest std {max_std:.3f} N <= {self.std_max:.3f} N): '
-                f'ending the sweep')
+                f'{100 * coverage:.0f} %, std {rms:.3f} N RMS <= {self.std_max:.3f} N, largest '
+                f'{max_std:.3f} N): ending the sweep')
 
 
 async def watch_sweep(waits, motion, duration_s: float, check_s: float,
                       peek: Callable[[], Awaitable[tuple[float, float]]],
-                      report: Callable[[float, float], None], enough: Callable[[float, float, float], str],
+                      report: Callable[[float, float], None], enough: Callable[..., str],
                       *, warn: Callable[[str], None], info: Callable[[str], None],
                       clock: Callable[[], float] = time.monotonic) -> bool:
-    """Ask ``peek()`` for (coverage, largest std) every ``check_s`` [s] and ``report`` them,
-    until ``motion`` (the sweep service's future, or None for an operator) ends or
-    ``duration_s`` [s] passes (False); True as soon as ``enough(elapsed_s, coverage, max_std)``
-    returns a message (which goes to ``info``). A peek that fails is warned about and the sweep
+    """Ask ``peek()`` for (coverage, largest std, further figures such as the std's RMS) every
+    ``check_s`` [s] and ``report`` the first two, until ``motion`` (the sweep service's future,
+    or None for an operator) ends or ``duration_s`` [s] passes (False); True as soon as
+    ``enough(elapsed_s, coverage, max_std, *further)`` returns a message (which goes to ``info``). A peek that fails is warned about and the sweep
     goes on, unless a cancel or the deadline ends it; a cancel raises through ``waits``."""
     t0 = clock()
     while True:
@@ -121,14 +127,14 @@ async def watch_sweep(waits, motion, duration_s: float, check_s: float,
         if motion is not None and motion.done():
             return False
         try:
-            coverage, max_std = await peek()
+            coverage, max_std, *further = await peek()
         except IterationStopped as exc:
             if waits.ending():   # a cancel or the procedure's deadline ends it here
                 raise
             warn(f'no sweep progress from the field_estimator ({exc}); the sweep goes on')
             continue
         report(coverage, max_std)
-        message = enough(clock() - t0, coverage, max_std)
+        message = enough(clock() - t0, coverage, max_std, *further)
         if message:
             info(message)
             return True

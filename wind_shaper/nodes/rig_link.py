@@ -43,7 +43,8 @@ class RigLink:
                                    if p.sweep_service and p.stop_sweep_service else None)
         shaping = node.setup.shaping
         policy = shaping.make_sweep_length()
-        self._judge = SweepJudge(policy.adaptive, p.sweep_min_s, policy.std_max(shaping.make_rule()))
+        self._judge = SweepJudge(policy.adaptive, p.sweep_min_s, policy.std_max(shaping.make_rule()),
+                                 policy.worst_factor)
         self._coverage_radius = shaping.make_estimator().max_gap
 
     def set_state(self, state: str, message: str) -> None:
@@ -176,11 +177,12 @@ class RigLink:
         log = self.node.get_logger()
         return await watch_sweep(
             self._waits, motion, duration, self.params.sweep_check_s, lambda: self._peek(k, plan),
-            report, lambda elapsed, coverage, max_std: self._judge.verdict(k, elapsed, coverage, max_std),
+            report, lambda *figures: self._judge.verdict(k, *figures),
             warn=lambda text: log.warning(text, throttle_duration_sec=10.0), info=log.info)
 
-    async def _peek(self, k: int, plan: RegionPlan | None = None) -> tuple[float, float]:
-        """(coverage [0..1], largest std [N] or NaN) of the sweep so far."""
+    async def _peek(self, k: int, plan: RegionPlan | None = None) -> tuple[float, float, float]:
+        """(coverage [0..1], largest std and the std's RMS over the key points [N] or NaN) of the
+        sweep so far."""
         U = self.book.command_in_force()
         wait = max(2.0, self.params.sweep_check_s)   # short: the sweep goes on without it
         answer = await self._waits.call(

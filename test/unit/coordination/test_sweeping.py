@@ -44,14 +44,15 @@ def test_a_region_sweep_is_shorter_by_its_share_of_the_disc_but_never_below_the_
 
 def test_peek_figures_count_the_key_points_passed_and_the_largest_std():
     positions = np.array([[0.0, 0.0], [0.1, 0.0]])
-    coverage, max_std = peek_figures(positions, True, [1, 1, 1, 1], [0.1, 0.3, 0.2, 0.2],
-                                     KEY_POINTS, 0.03)
+    coverage, max_std, rms_std = peek_figures(positions, True, [1, 1, 1, 1], [0.1, 0.3, 0.2, 0.2],
+                                              KEY_POINTS, 0.03)
     assert coverage == pytest.approx(0.5) and max_std == pytest.approx(0.3)
-    coverage, max_std = peek_figures(None, False, [], [], KEY_POINTS, 0.03)
-    assert math.isnan(coverage) and math.isnan(max_std)   # nothing yet
+    assert rms_std == pytest.approx(np.sqrt((0.01 + 0.09 + 0.04 + 0.04) / 4))
+    coverage, max_std, rms_std = peek_figures(None, False, [], [], KEY_POINTS, 0.03)
+    assert math.isnan(coverage) and math.isnan(max_std) and math.isnan(rms_std)   # nothing yet
     # a region sweep: its own key points only, and the std fused with what it carries over
-    coverage, max_std = peek_figures(positions, True, [1, 1, 1, 1], [0.1, 0.3, 0.2, 10.0],
-                                     KEY_POINTS, 0.03, fake_plan())
+    coverage, max_std, _ = peek_figures(positions, True, [1, 1, 1, 1], [0.1, 0.3, 0.2, 10.0],
+                                        KEY_POINTS, 0.03, fake_plan())
     assert coverage == 1.0 and max_std == pytest.approx(1 / np.sqrt(1 / 10.0 ** 2 + 1 / 0.5 ** 2))
 
 
@@ -62,8 +63,12 @@ def test_a_sweep_is_good_enough_only_when_adaptive_long_enough_covered_and_sure(
     assert judge.verdict(2, 7.0, 1.0, 0.2) == ''      # not sure enough
     text = judge.verdict(2, 7.04, 1.0, 0.05)
     assert text.startswith('iteration 2: the estimate is good enough after 7.0 s')
-    assert 'coverage 100 %' in text and '0.050 N <= 0.100 N' in text
+    assert 'coverage 100 %' in text and '0.050 N RMS <= 0.100 N' in text
     assert SweepJudge(False, 6.0, 0.1).verdict(2, 50.0, 1.0, 0.0) == ''
+    # the RMS over the key points decides, as long as no key point is above twice the threshold
+    assert judge.verdict(2, 7.0, 1.0, 0.15, 0.08).startswith('iteration 2: the estimate is good enough')
+    assert judge.verdict(2, 7.0, 1.0, 0.15, 0.12) == ''   # the RMS too large
+    assert judge.verdict(2, 7.0, 1.0, 0.25, 0.05) == ''   # one spot barely passed
 
 
 class FakeWaits:
