@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from ..core.errors import ConfigError, SweepError
 from ..core.tunnel import Sweep
+from .tiles import tiles
 from .turbulent import TurbulenceParameters, TurbulentGaussianProcessField, check_bounds
 
 
@@ -225,28 +226,11 @@ class LocalGaussianProcessField(GaussianProcessField):
         Q = np.asarray(points, dtype=float).reshape(-1, 2)
         mean = np.full(len(Q), self.mean_)
         std = np.full(len(Q), np.sqrt(self.signal_var_))
-        cell = np.floor((Q - Q.min(axis=0)) / self.block).astype(np.int64)
-        key = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
-        order = np.argsort(key, kind='stable')
-        _, first = np.unique(key[order], return_index=True)
-        ends = np.append(first, len(order))
         jitter = max(self.noise_std ** 2, 1e-8 * self.signal_var_)
-        # each tile's sample box: its query points' bounding box grown by the halo
-        tiles = [order[a:b] for a, b in zip(ends[:-1], ends[1:])]
-        lo = np.array([Q[t].min(axis=0) for t in tiles]) - self.halo
-        hi = np.array([Q[t].max(axis=0) for t in tiles]) + self.halo
-        centres, halves = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        candidates = self.tree_.query_ball_point(centres, np.hypot(halves[:, 0], halves[:, 1]))
-        for rows, centre, half, near in zip(tiles, centres, halves, candidates):
-            if not near:
-                continue
-            q = Q[rows]
-            near = np.asarray(near)
-            Xl = self.X_[near]
-            inside = np.all(np.abs(Xl - centre) <= half, axis=1)
-            Xl, yl = Xl[inside], self.y_[near[inside]]
-            if len(yl) == 0:
-                continue
+        for rows, near in tiles(Q, self.X_, self.tree_, self.block, self.halo):
+            if len(near) == 0:
+                continue        # no sample near the tile: the prior answers
+            q, Xl, yl = Q[rows], self.X_[near], self.y_[near]
             K = self.kernel(Xl, Xl)
             K[np.diag_indices_from(K)] += jitter
             try:
