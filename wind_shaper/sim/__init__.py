@@ -18,6 +18,7 @@ from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
+from .time_effects import TIME_FAULTS, SensorZeroDrift, UnsettledFans
 from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, OUTSIDE_SECOND,
                                  OUTSIDE_THIRD, CeilingDownwash, CoandaAttachment, DragLaw,
                                  EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
@@ -34,7 +35,7 @@ __all__ = [
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
     'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection', 'SupplySag',
-    'RecirculationCore',
+    'RecirculationCore', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
     'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',
