@@ -86,6 +86,9 @@ class CollectService:
     async def sweep(self, row: int, attempt: int) -> None:
         await self.node.rig.sweep(row, attempt)
 
+    async def bias_sensor(self) -> None:
+        await self.node.rig.bias_sensor()
+
     async def estimate(self, row: int, U: np.ndarray):
         return await self.node.rig.estimate(-1, U)  # -1: the estimate belongs to no iteration
 
@@ -133,7 +136,8 @@ class CollectService:
                                    f'{exp.design.source!r}, {len(exp.pending())} to sweep (about '
                                    f'{duration_text(plate_s)} of plate time), in {exp.folder}')
             node.rig.check_boundary()
-            await run_experiment(exp, self, max_sweeps=node.params.max_sweeps)
+            await run_experiment(exp, self, max_sweeps=node.params.max_sweeps,
+                                 bias_zero=node.params.bias_zero)
         except IterationStopped as stop:
             outcome, text = stop.state, f'experiment {stop.state}: {stop}; '
         except Exception as exc:  # noqa: BLE001 - the service must answer, and say why

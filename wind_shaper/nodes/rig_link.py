@@ -1,5 +1,6 @@
 """The coordinator's link to the rig: the ports that ``coordination.run_iteration``,
-``run_experiment`` and ``hold_point`` await, over the node's service clients and waits.
+``run_experiment`` and ``hold_point`` await, over the node's service clients and waits (and the
+force sensor's bias service, when ``bias_zero`` asks a designed experiment to bias it).
 
 The fans are commanded on the node's command topic and their read-back awaited; the field
 estimator is asked to begin, peek at and estimate a sweep; the plate is moved by the sweep
@@ -18,7 +19,8 @@ from wind_shaper_msgs.msg import IterationStatus
 from wind_shaper_msgs.srv import EstimateField, Sweep
 
 from ..control.region import RegionPlan
-from ..coordination import FanWatch, FieldAnswer, IterationStopped
+from ..coordination import BIAS_MODES, FanWatch, FieldAnswer, IterationStopped
+from ..core.errors import ConfigError
 from ..coordination.sweeping import (SweepJudge, discarded_text, peek_figures, required, sweep_span,
                                      watch_sweep)
 from ..ros import names
@@ -41,6 +43,11 @@ class RigLink:
                               if p.sweep_service else None)
         self._stop_sweep_client = (node.create_client(Trigger, p.stop_sweep_service, callback_group=cb)
                                    if p.sweep_service and p.stop_sweep_service else None)
+        if p.bias_zero not in BIAS_MODES:
+            raise ConfigError(f'bias_zero must be one of {", ".join(BIAS_MODES)}; got {p.bias_zero!r} '
+                              f'(never: leave the force sensor as it is)')
+        self._bias_client = (node.create_client(Trigger, names.FORCE_BIAS, callback_group=cb)
+                             if p.bias_zero != 'never' else None)
         shaping = node.setup.shaping
         policy = shaping.make_sweep_length()
         self._judge = SweepJudge(policy.adaptive, p.sweep_min_s, policy.std_max(shaping.make_rule()),
@@ -194,6 +201,17 @@ class RigLink:
         positions = np.column_stack([samples.x, samples.y]) if len(samples.t) else None
         return peek_figures(positions, answer.success, answer.estimate.mean, answer.estimate.std,
                             self._run.key_points, self._coverage_radius, plan)
+
+    async def bias_sensor(self) -> None:
+        """Zero the force sensor's reading (its bias service); the fans are off and settled."""
+        if self._bias_client is None:
+            return
+        done = await self._call(self._bias_client, Trigger.Request(), 'the force sensor\'s bias',
+                                self.params.service_timeout_s)
+        if not done.success:
+            raise IterationStopped(IterationStatus.STATE_FAILED,
+                                   f'the force sensor refused the bias: {done.message}; check the '
+                                   f'force_sensor node, or set bias_zero to never')
 
     async def _call(self, client, request, what: str, timeout_s: float, *, resend: bool = False):
         return await self._waits.call(client, request, what, timeout_s, resend=resend,

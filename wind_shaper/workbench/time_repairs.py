@@ -5,9 +5,10 @@ The time checks (``time_checks``) name the repair that fits what they found:
 * ``zero_drift_repaired`` (``--zero-drift interpolate``): the force sensor's zero drifted. Each
   fans-off sweep measures the zero at its moment (its mean force over its second half, after any
   fan still spinning down has stopped). Between them the zero is interpolated linearly in
-  recording time (held before the first and after the last), and its *change* from the fans-off
-  sweeps' mean is subtracted from every force. The fans-off sweeps' common level stays: a draft
-  with every fan off is physics, not the sensor's zero.
+  recording time (held before the first and after the last), and its *change* since the first
+  fans-off sweep is subtracted from every force: the zero stays as it was at the start, where a
+  lab biases the sensor, and so does a draft with every fan off (physics, not the zero; one
+  fans-off sweep cannot tell the two apart).
 * ``skip_first`` (``--skip-first S``): the fans had not settled when the sweeps began; the first
   ``S`` seconds of every sweep are left out.
 
@@ -75,7 +76,7 @@ def zero_drift_repaired(sweeps: SweepSet, method: str = 'interpolate', enabled=N
         at.append(float(np.mean(t[ok & half])))
         level.append(float(np.mean(s.forces[ok & half])))
     at, level = np.array(at), np.array(level)
-    change = level - level.mean()
+    change = level - level[0]
     fixed = tuple(Sweep(s.positions, s.forces - np.interp(t, at, change), s.times, s.pwm)
                   for s, t in zip(sweeps.sweeps, clocks))
     source = (f'{sweeps.source} (sensor zero interpolated between {len(off)} fans-off sweeps and '
