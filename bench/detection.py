@@ -69,6 +69,7 @@ TIME_FAULTS = {'sensor_zero_drift': ('sensor_zero', 'recording_order', 'within_s
                'unsettled_fans': ('since_command',)}
 TIME_ROWS = [('time', ()), ('time', ('sensor_zero_drift',)), ('time', ('unsettled_fans',)),
              ('time_mix', ('sensor_zero_drift', 'weak_fan')), ('time_mix', ('unsettled_fans', 'swirl')),
+             ('time_mix', ('unsettled_fans', 'weak_fan')),
              ('time_base', ('weak_fan',)), ('time_base', ('swirl',))]
 
 #: Rows of effects outside the library alone (any finding is wrong), and of mixes.

@@ -30,6 +30,7 @@ from .report import (Report, plot_discrepancy, plot_measured_vs_model, plot_rank
                      residual_sections)
 from .residuals import analyse_residuals
 from .suggest import suggest_sweeps
+from .time_checks.stage import time_rows
 from .wording import fixed_text
 
 __all__ = ['simulated_sweeps', 'fit_command', 'compare_command', 'diagnose_command', 'add_command',
@@ -177,6 +178,9 @@ def diagnose_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out,
     rep.text(f'Data: {data.source}, {len(data)} sweeps; held out: {", ".join(d.test_sweeps_.labels)}.\n\n'
              f'Model: {model!r}')
     rep.text(d.summary(), heading='Verdict')
+    if d.time_:
+        rep.table(['check', 'question', 'result', 'numbers'], time_rows(d.case_),
+                  heading='Time: does the residual depend on when a force was recorded?')
     if d.discrepancy_ is not None:
         rep.figure('discrepancy', plot_discrepancy(d.discrepancy_, d.train_sweeps_.commands, geometry),
                    'what lies outside the library: a discrepancy model fitted to the residual (no '

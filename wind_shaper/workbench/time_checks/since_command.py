@@ -5,14 +5,16 @@ field between the previous sweep's commands and its own. The model says what tha
 looks like: g = model(previous commands, z) - model(this sweep's commands, z) at each sample's
 place z. The residual r is fitted per sample as
 
-    r = c g + A exp(-s / tau) g           (s: time since the sweep started [s])
+    r = b_k + c g + A exp(-s / tau) g     (s: time since the sweep started [s])
 
 for time constants tau on a grid up to a quarter of the shortest sweep, keeping the tau of the
-least squared error; c takes up any model error that merely resembles g, so only the part that
-fades with s counts. A's standard error is cluster-robust by sweep (the sweeps are the
+least squared error; b_k, a level of each sweep k, takes up what is constant over a sweep (a
+zero that moved between sweeps, a model error of the sweep's commands), and c any model error
+that merely resembles g, so only the part that fades with s counts. A's standard error is cluster-robust by sweep (the sweeps are the
 independent units, gusts and path correlate samples within one). A fault: A > 0 at
 ``Recording.z`` standard errors, and the start of a sweep off by a material force (A rms(g)).
-The skip it names is how long the fading part stays above a fifth of the noise.
+The skip it names is how long the fading part stays above a twentieth of the noise (the noise
+measured on such sweeps is itself inflated by the fault), at most half the shortest sweep.
 
 The first sweep is left out (nothing says what ran before it), and so is every sweep at the
 previous one's commands (g = 0).
@@ -33,15 +35,17 @@ def _fit(parts, tau: float):
     """(A, its cluster-robust standard error, c, squared error) for one ``tau``; ``parts``: per
     sweep (s, g, r)."""
     X = [np.column_stack([g, np.exp(-s / tau) * g]) for s, g, r in parts]
+    X = [x - x.mean(axis=0) for x in X]   # each sweep's own level (b_k) out
+    R = [r - r.mean() for _, _, r in parts]
     XtX = sum(x.T @ x for x in X)
-    Xtr = sum(x.T @ r for x, (_, _, r) in zip(X, parts))
+    Xtr = sum(x.T @ r for x, r in zip(X, R))
     try:
         bread = np.linalg.inv(XtX)
     except np.linalg.LinAlgError:
         return 0.0, np.inf, 0.0, np.inf
     beta = bread @ Xtr
     meat, sse = np.zeros((2, 2)), 0.0
-    for x, (_, _, r) in zip(X, parts):
+    for x, r in zip(X, R):
         e = r - x @ beta
         u = x.T @ e
         meat += np.outer(u, u)
@@ -73,8 +77,8 @@ class SinceCommand(TimeCheck):
         rms_g = float(np.sqrt(np.mean(np.concatenate([g for _, g, _ in parts]) ** 2)))
         start = A * rms_g
         fault = z >= rec.z and start >= rec.size
-        # how long the fading part stays above a fifth of the noise, in half seconds
-        fade = tau * np.log(max(start / (0.2 * rec.noise_sd), 1.0))
+        # how long the fading part stays above a twentieth of the noise, in half seconds
+        fade = tau * np.log(max(start / (0.05 * rec.noise_sd), 1.0))
         skip = float(min(np.ceil(2 * fade) / 2, np.floor(shortest / 2)))
         skip = max(skip, 0.5)
         numbers = {'share_at_start': A, 'z': z, 'tau_s': tau, 'start_error_N': start,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from .base import TIME_CHECKS, Recording
 
-__all__ = ['check_time', 'time_text', 'faults']
+__all__ = ['check_time', 'time_text', 'faults', 'time_rows']
 
 
 def check_time(case):
@@ -43,3 +43,11 @@ def time_text(case) -> str:
     tail = (f' To diagnose these sweeps as they should have been recorded, give '
             f'{" and ".join(f"`{r}`" for r in repairs)}.' if repairs else '')
     return head + ''.join(f'\n- {r.message}' for r in found) + tail
+
+
+def time_rows(case) -> list[list[str]]:
+    """One row per time check for a report table: check, question, result, numbers."""
+    return [[name, TIME_CHECKS[name].question if name in TIME_CHECKS else '', r.state,
+             ', '.join(f'{k} {v:.3g}' if isinstance(v, float) else f'{k} {v}'
+                       for k, v in r.numbers.items()) or r.message]
+            for name, r in (case.time or {}).items()]
