@@ -18,13 +18,13 @@ from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
-from .time_effects import TIME_FAULTS, SensorZeroDrift, UnsettledFans
 from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, OUTSIDE_SECOND,
-                                 OUTSIDE_THIRD, CeilingDownwash, CoandaAttachment, DragLaw,
-                                 EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
+                                 OUTSIDE_THIRD, TIME_FAULTS, CeilingDownwash, CoandaAttachment,
+                                 DragLaw, EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
                                  JetDeflection, JetSpreading, NeighbourStarvation, PlenumStarvation,
-                                 QuadraticSwirl, SideDraft, StandWake, ThermalGradient, VaneRipple,
-                                 WallLeak, WallReflection, WallReturnFlow)
+                                 QuadraticSwirl, SensorZeroDrift, SideDraft, StandWake,
+                                 ThermalGradient, UnsettledFans, VaneRipple, WallLeak,
+                                 WallReflection, WallReturnFlow)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',

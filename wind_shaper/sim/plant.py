@@ -96,7 +96,7 @@ class SimulatedTunnel:
         self._pwm = np.zeros(n)
         self.call_count = 0
         # the recording clock [s] (sweeps' plate time end to end) and the last command change,
-        # for faults in time (``time_effects``: a drifting sensor zero, fans still settling)
+        # for faults in time (``unmodelled_sensing``: a drifting sensor zero, fans still settling)
         self.clock_s = 0.0
         self._previous = np.zeros(n)
         self._changed_at = 0.0

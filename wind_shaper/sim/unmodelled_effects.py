@@ -23,7 +23,7 @@ from .unmodelled_fans import EscCrosstalk, NeighbourStarvation, PlenumStarvation
 from .unmodelled_flow import HoneycombBlockage, StandWake, VaneRipple
 from .unmodelled_jets import (CoandaAttachment, HubShadow, JetDeflection, JetSpreading, MergingJets,
                               QuadraticSwirl)
-from .unmodelled_sensing import DragLaw, MocapLatency
+from .unmodelled_sensing import DragLaw, MocapLatency, SensorZeroDrift, UnsettledFans
 from .unmodelled_surroundings import (CeilingDownwash, SideDraft, ThermalGradient, WallLeak,
                                       WallReflection, WallReturnFlow)
 
@@ -32,7 +32,7 @@ __all__ = ['HoneycombBlockage', 'StandWake', 'PlenumStarvation', 'SideDraft', 'Q
            'WallReturnFlow', 'VaneRipple', 'JetSpreading', 'HubShadow', 'NeighbourStarvation',
            'CoandaAttachment', 'WallLeak', 'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection',
            'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
-           'PLANT_VARIATIONS']
+           'PLANT_VARIATIONS', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS']
 
 #: Effects of physics that no library family stands for, and in-library effects in another form.
 OUTSIDE_LIBRARY = (HoneycombBlockage, StandWake, PlenumStarvation, SideDraft, ThermalGradient)
@@ -51,5 +51,10 @@ OTHER_FORM = (QuadraticSwirl, MergingJets)
 #: Plant variations for benchmarks (not in the workbench's detection table yet).
 PLANT_VARIATIONS = (UnequalCurves,)
 
+#: Faults in time of the recording (a drifting sensor zero, fans unsettled when sweeps start),
+#: written for the diagnosis's time checks (``workbench.time_checks``), which name them before
+#: any candidate is tried: bench/detection.py --kinds time.
+TIME_FAULTS = (SensorZeroDrift, UnsettledFans)
+
 register_effects(*OUTSIDE_LIBRARY, *OUTSIDE_FRESH, *OUTSIDE_SECOND, *OUTSIDE_THIRD, *OTHER_FORM,
-                 *PLANT_VARIATIONS)
+                 *PLANT_VARIATIONS, *TIME_FAULTS)

@@ -1,4 +1,4 @@
-"""Faults in time in the simulated tunnel (sim.time_effects): the sensor's zero drifting over
+"""Faults in time in the simulated tunnel (sim.unmodelled_sensing): the sensor's zero drifting over
 the recording, fans that reach a new command through a first-order lag; tunnels without them
 sweep exactly as before."""
 import numpy as np
