@@ -53,8 +53,9 @@ Gauss-Newton standard error and a delete-one-sweep jackknife (sweeps are the ind
 
 The work is a line of stages, each taking and returning the one ``case.Case``:
 ``case.open_case`` (split, refit, noise) -> ``selection.select`` (screen and select) ->
-``checks.check_findings`` (every check of each finding) -> ``rest.describe_rest`` (what is
-left) -> ``verdict.word`` (the verdict). ``Diagnosis`` holds the settings, runs the stages and
+``checks.check_findings`` (every check of each finding) -> ``family_forms.try_other_forms``
+(the other forms of a family that explains much but does not hold) -> ``rest.describe_rest``
+(what is left) -> ``verdict.word`` (the verdict). ``Diagnosis`` holds the settings, runs the stages and
 exposes the case's results with a trailing underscore.
 """
 from __future__ import annotations
@@ -69,6 +70,7 @@ from .checks import CHECKS, Round, check_findings
 from .checks.both_sides import ONE_JET_FAMILIES
 from .checks.specific import SPECIFIC_FAMILIES, broader_forms, every_fan_form, mean_thrust_form
 from .data import SweepSet
+from .family_forms import try_other_forms
 from .fitting import FitResult
 from .library import Library
 from .rest import describe_rest
@@ -81,7 +83,7 @@ __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_
            'SPECIFIC_FAMILIES']
 
 #: The stages after ``open_case``, in order: each takes the ``Case`` and returns it.
-STAGES = (select, check_findings, describe_rest, verdict.word)
+STAGES = (select, check_findings, try_other_forms, describe_rest, verdict.word)
 
 #: The case's fields a fitted ``Diagnosis`` exposes with a trailing underscore (``steps_``, ...).
 _EXPOSED = tuple(f.name for f in fields(Case) if f.name not in ('settings', 'current', 'current_rmse'))
