@@ -22,6 +22,7 @@ from .data import SweepSet, design_commands, from_sim
 from .diagnose import Diagnosis, candidate_std, drop_text, fit_mask
 from .discrepancy import SCALE_FEATURES, describe_discrepancy, fit_discrepancy
 from .formula import fit_formula
+from .wording import error_text
 from .errors import CandidateError
 from .fitting import FitResult, fit_model
 from .library import Library, _pm, apply_candidate, candidate_for_hidden_effect, default_library
@@ -105,7 +106,8 @@ def fit_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out, *,
         rows.append(['held out (raw samples)', _fmt(h.rmse), _fmt(h.r2, 4), _fmt(h.max_error), _fmt(h.bias), h.n])
     rep.table(['data', 'RMSE [N]', 'R²', 'largest error [N]', 'bias [N]', 'n'], rows, heading='Scores')
     if held is not None:
-        rep.text(f'Held-out model error (measurement noise removed): {held["model_rmse"]:.3f} N; the '
+        rep.text(f'Held-out model error (measurement noise removed): '
+                 f'{error_text(held["model_rmse"], held.get("resolution", 0.0))}; the '
                  f'measurement noise is {held["noise_sd"]:.3f} N per sample.')
     per = [[k, _fmt(s.rmse), _fmt(s.r2, 4), _fmt(s.max_error), s.n] for k, s in train_scores['per_sweep'].items()]
     if held is not None:
@@ -374,7 +376,7 @@ def _added_text(entry: dict) -> str:
 def _error_change(before: float, after: float, floor: float) -> tuple[str, bool]:
     """The held-out model error before -> after in words, and whether the old model was already
     below the noise level ``floor`` [N] (then no % drop is claimed: the sweeps cannot show one)."""
-    head = f'held-out model error {before:.3f} N -> {after:.3f} N'
+    head = f'held-out model error {error_text(before)} -> {error_text(after)}'
     if before < floor:
         if after < floor:
             return (f'{head}: both below the noise level ({floor:.3f} N), so these sweeps cannot '

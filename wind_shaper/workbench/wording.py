@@ -52,5 +52,5 @@ def error_text(model_error: float, floor: float = 0.0) -> str:
     do better than the noise, and 0.000 N would claim it did."""
     floor = float(floor) if np.isfinite(floor) else 0.0
     if model_error <= max(floor, 0.0005):
-        return f'at the noise level (below {max(floor, 0.001):.3f} N)'
+        return f'at the noise level (below {floor:.3f} N)' if floor >= 0.0005 else 'at the noise level'
     return f'{model_error:.3f} N'
