@@ -18,6 +18,15 @@ form, jet interaction with or without its free thrust exponent; ``quadratic_swir
 wrong: a finding of any other family); each effect outside the library
 alone (any finding is wrong); each outside effect beside a known one (found: the known one's
 candidate; wrong: anything else). Writes bench/out/detection.json and prints a Markdown table.
+
+Faults in time (``--kinds time``, the rows of docs/workbench-time.md): the sensor's zero
+drifting and the fans unsettled when sweeps start, alone and beside a known effect, the known
+effects alone and a clean tunnel for comparison. Named: the time check that stands for the fault
+found it (with its repair in the verdict); a time alarm of any other check, or on a row without
+a fault in time, is wrong. When a time check found a fault, the run diagnoses again with the
+repairs the verdict named (as a lab would): found and wrong are judged on that second diagnosis.
+
+    .venv/bin/python bench/detection.py --kinds time --seeds 10 --first-seed 200
 """
 from __future__ import annotations
 
@@ -55,9 +64,19 @@ THIRD = ['drag_law', 'mocap_latency', 'ceiling_downwash', 'wall_reflection']
 THIRD_MIXES = [('drag_law', 'weak_fan'), ('mocap_latency', 'wall_boundary_layer'),
                ('ceiling_downwash', 'swirl'), ('wall_reflection', 'tilted_fan')]
 
+#: Faults in time, the time checks that name each (any of them), and the rows beside them.
+TIME_FAULTS = {'sensor_zero_drift': ('sensor_zero', 'recording_order', 'within_sweep'),
+               'unsettled_fans': ('since_command',)}
+TIME_ROWS = [('time', ()), ('time', ('sensor_zero_drift',)), ('time', ('unsettled_fans',)),
+             ('time_mix', ('sensor_zero_drift', 'weak_fan')), ('time_mix', ('unsettled_fans', 'swirl')),
+             ('time_mix', ('unsettled_fans', 'weak_fan')),
+             ('time_base', ('weak_fan',)), ('time_base', ('swirl',))]
+
 #: Rows of effects outside the library alone (any finding is wrong), and of mixes.
 OUTSIDE_KINDS = ('outside', 'fresh', 'second', 'third')
 MIX_KINDS = ('mix', 'fresh_mix', 'second_mix', 'third_mix')
+#: Rows of faults in time (``--kinds time`` runs them all).
+TIME_KINDS = ('time', 'time_mix', 'time_base')
 
 #: A tunnel unlike the default in form, not only in size: heavy-tailed jets (the prior's are
 #: Gaussian), other thrust curves, widths, ring and build, more turbulence. The reference is
@@ -118,6 +137,7 @@ def cases(quick: bool, counts=None) -> list[tuple[str, tuple, int]]:
     out += [('second_mix', m, n) for m in SECOND_MIXES for n in mix_counts]
     out += [('third', (e,), n) for e in THIRD for n in counts]
     out += [('third_mix', m, n) for m in THIRD_MIXES for n in mix_counts]
+    out += [(k, e, 12) for k, e in TIME_ROWS]
     return out
 
 
@@ -160,9 +180,18 @@ def run_one(job) -> dict:
     t0 = time.process_time()
     data = simulated_sweeps(make_tunnel(setup, tunnel, seed, built), n_sweeps, seed=seed)
     d = Diagnosis(**DIAGNOSIS).fit(reference, data, setup.geometry)
+    time_faults = [r.check for r in d.time_.values() if r.fault]
+    expected_time = {c for e in effects for c in TIME_FAULTS.get(e, ())}
+    repairs = [r.repair for r in d.time_.values() if r.fault and r.repair]
+    time_named = bool(expected_time) and bool(set(time_faults) & expected_time) and all(
+        r in d.summary() for r in repairs)
+    if repairs:  # diagnose again as a lab would, with the repairs the verdict named
+        data = repaired_data(data, repairs, setup)
+        d = Diagnosis(**DIAGNOSIS).fit(reference, data, setup.geometry)
     named = [t.candidate.name for t in d.steps_]
     known = {'in_library': built[:1], 'mix': built[1:], 'fresh_mix': built[1:],
-             'second_mix': built[1:], 'third_mix': built[1:]}.get(kind, [])
+             'second_mix': built[1:], 'third_mix': built[1:], 'time_base': built,
+             'time_mix': built[1:]}.get(kind, [])
     # judged by family: swirl named in its wider form (or the reverse) is the right physics
     family = {c.name: c.family for c in default_library().candidates(reference, setup.geometry)}
     # a per-fan effect must be named for its own fan (a gain of HM3 is wrong when HM2 is weak);
@@ -183,7 +212,43 @@ def run_one(job) -> dict:
                                  if d.discrepancy_ is not None and d.discrepancy_.heldout_before > 0 else None),
             'formula': d.formula_.term.formula() if d.formula_ is not None and d.formula_.offered else '',
             'undecided': d.undecided_.trial.candidate.name if d.undecided_ is not None else '',
+            'time_faults': time_faults, 'time_named': time_named,
+            'time_wrong': sorted(set(time_faults) - expected_time), 'repairs': repairs,
+            'after_repair': [r.check for r in d.time_.values() if r.fault] if repairs else None,
             'cpu_s': round(time.process_time() - t0, 2)}
+
+
+def repaired_data(data, repairs, setup):
+    """``data`` repaired as the options ``repairs`` (``--zero-drift interpolate``,
+    ``--skip-first S``) say, in the order the command line applies them."""
+    from wind_shaper.workbench.time_repairs import skip_first, zero_drift_repaired
+    for r in sorted(repairs, key=lambda r: not r.startswith('--zero-drift')):
+        option, value = r.split()
+        if option == '--zero-drift':
+            data = zero_drift_repaired(data, value, setup.geometry.fans.enabled)
+        elif option == '--skip-first':
+            data = skip_first(data, float(value))
+    return data
+
+
+def time_table(rows: list[dict]) -> str:
+    """The rows of faults in time (and clean) as a Markdown table."""
+    out = ['| case | runs | fault in time named, with its repair | time alarm of another check '
+           '| known effect found (after the repair) | wrong effect named |', '|---|---|---|---|---|---|']
+    groups: dict = {}
+    for r in rows:
+        if r['kind'] in TIME_KINDS or (r['kind'] == 'clean' and r['sweeps'] == 12):
+            groups.setdefault(' + '.join(r['effects']) or 'clean', []).append(r)
+    for name, rs in groups.items():
+        n = len(rs)
+        has_fault = any(e in TIME_FAULTS for e in rs[0]['effects'])
+        has_known = any(e not in TIME_FAULTS for e in rs[0]['effects'])
+        named = f'{sum(r["time_named"] for r in rs)}/{n}' if has_fault else '-'
+        alarm = sum(bool(r['time_wrong']) for r in rs)
+        found = f'{sum(r["found"] for r in rs)}/{n}' if has_known else '-'
+        wrong = sum(bool(r['wrong']) for r in rs)
+        out.append(f'| {name} | {n} | {named} | {alarm}/{n} | {found} | {wrong}/{n} |')
+    return '\n'.join(out)
 
 
 def table(rows: list[dict]) -> str:
@@ -219,7 +284,8 @@ def main(argv=None) -> int:
     p.add_argument('--jobs', type=int, default=2)
     p.add_argument('--kinds', default='clean,in_library,outside,mix',
                    help='rows to run (comma-separated: clean, in_library, outside, mix, and the '
-                        'held-out physics fresh, fresh_mix, second, second_mix, third, third_mix)')
+                        'held-out physics fresh, fresh_mix, second, second_mix, third, third_mix; '
+                        'time: the faults in time with their comparison rows)')
     p.add_argument('--tunnel', choices=('default', 'other', 'grid'), default='default',
                    help='the simulated tunnel: the default one, one with heavy-tailed jets and '
                         'another build, or a 3 x 3 fan wall (their references commissioned on '
@@ -235,7 +301,9 @@ def main(argv=None) -> int:
         DIAGNOSIS[name] = float(value) if '.' in value else int(value)
     counts = tuple(int(c) for c in args.counts.split(',')) if args.counts else None
     kinds = set(args.kinds.split(','))
-    unknown = kinds - {'clean', 'in_library', *OUTSIDE_KINDS, *MIX_KINDS}
+    if 'time' in kinds:
+        kinds |= set(TIME_KINDS)
+    unknown = kinds - {'clean', 'in_library', *OUTSIDE_KINDS, *MIX_KINDS, *TIME_KINDS}
     if unknown:
         p.error(f'unknown --kinds {sorted(unknown)}')
     reference_path(args.tunnel)  # commission once, before the workers start
@@ -251,7 +319,10 @@ def main(argv=None) -> int:
                 print(f'wrong: {row}', flush=True)
             if (i + 1) % 20 == 0:
                 print(f'{i + 1}/{len(jobs)} runs, {time.time() - t0:.0f} s', file=sys.stderr, flush=True)
-    text = table(rows)
+    others = [r for r in rows if r['kind'] not in TIME_KINDS]
+    text = table(others) if others else ''
+    if any(r['kind'] in TIME_KINDS for r in rows):
+        text = (text + '\n\n' if text else '') + time_table(rows)
     print(text)
     clean = [r for r in rows if r['kind'] == 'clean']
     outside = [r for r in rows if r['kind'] in OUTSIDE_KINDS]
@@ -259,6 +330,9 @@ def main(argv=None) -> int:
     print(f'\nfalse findings on clean data: {sum(bool(r["named"]) for r in clean)}/{len(clean)}; '
           f'wrong findings outside the library: {sum(bool(r["wrong"]) for r in outside)}/{len(outside)}; '
           f'wrong findings in mixes: {sum(bool(r["wrong"]) for r in mixes)}/{len(mixes)}; '
+          f'time alarms where no fault in time was: '
+          f'{sum(bool(r["time_faults"]) for r in rows if not set(r["effects"]) & set(TIME_FAULTS))}'
+          f'/{sum(1 for r in rows if not set(r["effects"]) & set(TIME_FAULTS))}; '
           f'{len(rows)} runs in {time.time() - t0:.0f} s')
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({'seeds': args.seeds, 'first_seed': args.first_seed,

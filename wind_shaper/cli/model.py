@@ -57,6 +57,13 @@ def _data(setup, args):
     if getattr(args, 'position_lag', 0.0):
         from ..workbench.sync import repaired
         data = repaired(data, args.position_lag)
+    # faults in time, repaired in the order they arose: the zero on the recording clock first
+    if getattr(args, 'zero_drift', 'none') != 'none':
+        from ..workbench.time_repairs import zero_drift_repaired
+        data = zero_drift_repaired(data, args.zero_drift, setup.geometry.fans.enabled)
+    if getattr(args, 'skip_first', 0.0):
+        from ..workbench.time_repairs import skip_first
+        data = skip_first(data, args.skip_first)
     return data
 
 
@@ -272,6 +279,13 @@ def _common(p, multi_model=False):
                      help='pair each force with the plate\'s position S seconds later: for motion '
                           'capture that arrived S late (negative: early); the diagnosis measures it '
                           '("the positions arrive 40 ms late" is 0.040)')
+    src.add_argument('--zero-drift', choices=('none', 'interpolate'), default='none',
+                     help='repair a force-sensor zero that drifted: interpolate it linearly in '
+                          'recording time between the fans-off sweeps and subtract its change '
+                          '(the diagnosis says when the fans-off sweeps disagree)')
+    src.add_argument('--skip-first', type=float, default=0.0, metavar='S',
+                     help='leave out the first S seconds of each sweep: for sweeps that started '
+                          'before the fans settled (the diagnosis names S)')
     if multi_model:
         p.add_argument('--model', type=Path, action='append', default=None,
                        help='a model file; repeat to compare several (default: the reference)')

@@ -15,6 +15,14 @@ would fail the same way. It awaits the same
 ``RigPorts`` as a shaping iteration (``coordination.iteration``), so the hardware path is the
 shaping loop's. Any port may raise ``IterationStopped`` (failed or cancelled): the rows stored
 before stay stored. Commands [fraction 0..1, the tunnel's fan order]; times [s].
+
+Biasing the force sensor (``bias_zero``, opt-in; ``bias_plan`` decides per row): a strain-gauge
+sensor's zero drifts over a recording, and the diagnosis sees that as a residual that follows
+the recording order. ``'fans_off'`` biases the sensor on every row with every fan off, once its
+fans have settled, before it is swept; ``'every_sweep'`` also turns every fan off before each
+other row, waits for them to settle, biases, and then commands the row. Either zeroes a draft
+that blows with every fan off, too: the fans-off sweeps then read zero, and the diagnosis can
+no longer see such a draft. ``'never'`` (the default) leaves the sensor as it is.
 """
 from __future__ import annotations
 
@@ -33,6 +41,31 @@ from .iteration import FAILED, IterationStopped, RigPorts
 
 COMMANDING, SWEEPING, CHECKING = 'commanding', 'sweeping', 'checking'
 
+#: When a designed experiment biases the force sensor (see the module docstring).
+BIAS_MODES = ('never', 'fans_off', 'every_sweep')
+#: What ``bias_plan`` says for one row: nothing, bias once the row's own (fans-off) commands
+#: have settled, or turn the fans off and bias before commanding the row.
+NO_BIAS, BIAS_AT_ROW, BIAS_BEFORE_ROW = '', 'at_row', 'before_row'
+
+
+def bias_plan(commands, mode: str) -> list[str]:
+    """Per row of ``commands`` (rows x fans) [fraction], when to bias the force sensor under
+    ``mode`` (one of ``BIAS_MODES``): ``BIAS_AT_ROW`` for a row with every fan off,
+    ``BIAS_BEFORE_ROW`` for any other row with 'every_sweep', else ``NO_BIAS``."""
+    if mode not in BIAS_MODES:
+        raise DesignError(f'bias_zero must be one of {", ".join(BIAS_MODES)}; got {mode!r} '
+                          f'(fans_off: bias the force sensor on the rows with every fan off)')
+    rows = np.atleast_2d(np.asarray(commands, dtype=float))
+    plan = []
+    for u in rows:
+        if mode == 'never':
+            plan.append(NO_BIAS)
+        elif np.all(np.abs(u) < 1e-9):
+            plan.append(BIAS_AT_ROW)
+        else:
+            plan.append(BIAS_BEFORE_ROW if mode == 'every_sweep' else NO_BIAS)
+    return plan
+
 
 class ExperimentPorts(RigPorts, Protocol):
     """A shaping iteration's ports, and two more for an experiment's feedback."""
@@ -42,6 +75,10 @@ class ExperimentPorts(RigPorts, Protocol):
 
     def row_done(self, index: int, outcome: str, sweep: Sweep | None, coverage: float) -> None:
         """A row was stored or flagged (``sweep``: its pairs, when there are any)."""
+
+    async def bias_sensor(self) -> None:
+        """Zero the force sensor's reading now (only asked with every fan off and settled,
+        and only with ``bias_zero`` other than 'never')."""
 
 
 @dataclass(frozen=True)
@@ -120,19 +157,30 @@ class Experiment:
 
 
 async def run_experiment(exp: Experiment, ports: ExperimentPorts, *, max_sweeps: int,
-                         clock: Callable[[], float] = time.time) -> list[RowResult]:
+                         clock: Callable[[], float] = time.time,
+                         bias_zero: str = 'never') -> list[RowResult]:
     """Sweep every row of ``exp`` not stored yet (see the module docstring); returns what became
-    of each. Raises IterationStopped when a port fails or a cancel comes: rows stored so far stay."""
+    of each. ``bias_zero``: when to bias the force sensor (``BIAS_MODES``). Raises
+    IterationStopped when a port fails or a cancel comes: rows stored so far stay."""
     results = []
     n = len(exp)
+    plan = bias_plan(exp.design.commands, bias_zero)
     for i in exp.pending():
         label, U = exp.design.labels[i], exp.design.commands[i].copy()
         where = f'sweep {i + 1} of {n} ({label})'
         stamps = {'started': clock()}
         ports.at_row(i, 0)
+        if plan[i] == BIAS_BEFORE_ROW:
+            ports.set_state(COMMANDING, f'{where}: every fan off to bias the force sensor')
+            await ports.command_fans(np.zeros_like(U))
+            await ports.bias_sensor()
+            stamps['biased'] = clock()
         ports.set_state(COMMANDING, f'{where}: commanding the fans')
         await ports.command_fans(U)
         stamps['applied'] = clock()
+        if plan[i] == BIAS_AT_ROW:
+            await ports.bias_sensor()
+            stamps['biased'] = clock()
         ports.check_boundary()
         await ports.begin_sweep()
         for attempt in range(1, max_sweeps + 1):
@@ -172,4 +220,4 @@ async def run_experiment(exp: Experiment, ports: ExperimentPorts, *, max_sweeps:
 
 
 __all__ = ['COMMANDING', 'SWEEPING', 'CHECKING', 'Experiment', 'ExperimentPorts', 'RowResult',
-           'run_experiment']
+           'run_experiment', 'BIAS_MODES', 'bias_plan', 'NO_BIAS', 'BIAS_AT_ROW', 'BIAS_BEFORE_ROW']

@@ -5,13 +5,17 @@ and raises ``LimitError`` (what was too large, by how much, what to do; a short 
 or returns quietly. They look at sizes only: what the fields mean (a target, a model, a design)
 is checked afterwards by the code that parses them, within these sizes. A designed experiment
 also states its plate time here, and one above the budget is refused with that figure.
+
+``read_model`` then reads a set_model request's model (its text, or a file) and builds the prior
+for the run; ``why`` words any refusal for the answer.
 """
 from __future__ import annotations
 
 from typing import Sequence
 
-from ..core.errors import LimitError
-from ..core.limits import Limits
+from ..core.errors import ConfigError, LimitError, WindShaperError
+from ..core.limits import Limits, excerpt
+from ..core.safe_yaml import read_text_file
 
 
 def check_model_request(limits: Limits, model_yaml: str, path: str) -> None:
@@ -54,5 +58,28 @@ def check_hold_request(limits: Limits, fan_names: Sequence[str], pwm: Sequence[f
     limits.count(pwm, limits.fans, 'fans', 'pwm')
 
 
+def read_model(run, limits: Limits, text: str, path: str):
+    """(text, source, model) of a set_model request for ``run`` (a ``ShapingRun``): the
+    ``text`` when it has any, else the file at ``path`` (at most limits.yaml_bytes). Reads a
+    file and builds a model: a node runs it off its executor. ConfigError says what is wrong."""
+    source = 'the model_yaml text'
+    if not text.strip():
+        if not path:
+            raise ConfigError('give a model file as model_yaml text or as a path')
+        source = path
+        try:
+            text = read_text_file(path, limits.yaml_bytes, limits)
+        except OSError as exc:
+            raise ConfigError(f'cannot read {path}: {exc.strerror or exc}') from None
+    return text, source, run.model_from_text(text, source)
+
+
+def why(exc: Exception) -> str:
+    """A refusal's reason: a WindShaperError says it; anything else is named, shortly."""
+    if isinstance(exc, WindShaperError):
+        return str(exc)
+    return f'unexpected {type(exc).__name__}: {excerpt(str(exc), quote=False)}'
+
+
 __all__ = ['check_collect_request', 'check_hold_request', 'check_model_request',
-           'check_target_request']
+           'check_target_request', 'read_model', 'why']

@@ -5,13 +5,15 @@
 ``coverage``: the key points a moving plate has passed (live feedback, the re-sweep flag).
 ``field``: GET_CLOSEST subsampling and the Gaussian-process field (mean and std at any point).
 ``turbulent``: the GP whose noise grows with the force and comes in gusts over sample time, its
-hyperparameters fitted per sweep (the default estimator's model: a std that can be trusted).
+hyperparameters fitted per sweep (the default estimator's model: a std that can be trusted);
+``local_turbulent``: the same model solved tile by tile for walls too large for one GP.
 Positions [m, tunnel frame], forces [N], times [s].
 """
 from .coverage import Coverage, coverage_share
 from .align import MIN_OVERLAP, SampleBuffer, align_sweep, pose_period
 from .field import (FieldEstimate, FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
                     Subsample, closest_samples, fit_hyperparameters, get_closest)
+from .local_turbulent import LocalTurbulentGaussianProcessField
 from .turbulent import (TURBULENCE_BOUNDS, TurbulenceParameters, TurbulentGaussianProcessField,
                         fit_turbulence)
 from .frames import (PlateRelay, RelayResult, RelayStats, RigidTransform, Verdict, quat_conjugate,
@@ -23,6 +25,7 @@ __all__ = [
     'FieldEstimate', 'FieldEstimator', 'GaussianProcessField', 'LocalGaussianProcessField',
     'Subsample', 'closest_samples', 'get_closest', 'fit_hyperparameters',
     'TURBULENCE_BOUNDS', 'TurbulenceParameters', 'TurbulentGaussianProcessField', 'fit_turbulence',
+    'LocalTurbulentGaussianProcessField',
     'RigidTransform', 'PlateRelay', 'RelayResult', 'RelayStats', 'Verdict', 'quat_normalize',
     'quat_multiply', 'quat_conjugate', 'quat_to_matrix', 'quat_rotate', 'quat_to_yaw',
     'quat_from_yaw',

@@ -5,6 +5,7 @@ Positions are plate centres [m, tunnel frame]; forces are vertical plate forces 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Mapping
 
 import numpy as np
@@ -14,6 +15,8 @@ from scipy.spatial import cKDTree
 
 from ..core.errors import ConfigError, SweepError
 from ..core.tunnel import Sweep
+from .local_turbulent import LocalTurbulentGaussianProcessField
+from .tiles import tiles
 from .turbulent import TurbulenceParameters, TurbulentGaussianProcessField, check_bounds
 
 
@@ -42,14 +45,23 @@ class Subsample:
     times: np.ndarray | None = None
 
 
-def closest_samples(sweep: Sweep, key_points: np.ndarray) -> Subsample:
-    """GET_CLOSEST on a sweep: finite samples only, each picked sample used once."""
+def closest_samples(sweep: Sweep, key_points: np.ndarray, min_picked: int = 0) -> Subsample:
+    """GET_CLOSEST on a sweep: finite samples only, each picked sample used once. With fewer key
+    points than ``min_picked``, each key point brings its ceil(min_picked / N) nearest samples:
+    a few dozen key points would otherwise leave the GP's noise and gusts to be learned from
+    as many samples (on a 4 x 4 wall's 121 key points the fitted share of gusts ran 0.3-0.95
+    from sweep to sweep)."""
     clean = sweep.finite()
     if len(clean) == 0:
         raise SweepError(f'none of the sweep\'s {len(sweep)} samples is finite: check the force '
                          f'sensor and motion-capture streams')
+    key_points = np.asarray(key_points, dtype=float)
     idx = get_closest(clean.positions, key_points)
     dist = np.linalg.norm(clean.positions[idx] - key_points, axis=1)
+    per_point = int(np.ceil(min_picked / max(len(key_points), 1)))
+    if per_point > 1 and len(clean) > len(key_points):
+        _, near = cKDTree(clean.positions).query(key_points, k=min(per_point, len(clean)))
+        idx = np.asarray(near, dtype=int).ravel()
     unique = np.unique(idx)
     return Subsample(clean.positions[unique], clean.forces[unique], dist, clean.times[unique])
 
@@ -225,28 +237,11 @@ class LocalGaussianProcessField(GaussianProcessField):
         Q = np.asarray(points, dtype=float).reshape(-1, 2)
         mean = np.full(len(Q), self.mean_)
         std = np.full(len(Q), np.sqrt(self.signal_var_))
-        cell = np.floor((Q - Q.min(axis=0)) / self.block).astype(np.int64)
-        key = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
-        order = np.argsort(key, kind='stable')
-        _, first = np.unique(key[order], return_index=True)
-        ends = np.append(first, len(order))
         jitter = max(self.noise_std ** 2, 1e-8 * self.signal_var_)
-        # each tile's sample box: its query points' bounding box grown by the halo
-        tiles = [order[a:b] for a, b in zip(ends[:-1], ends[1:])]
-        lo = np.array([Q[t].min(axis=0) for t in tiles]) - self.halo
-        hi = np.array([Q[t].max(axis=0) for t in tiles]) + self.halo
-        centres, halves = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        candidates = self.tree_.query_ball_point(centres, np.hypot(halves[:, 0], halves[:, 1]))
-        for rows, centre, half, near in zip(tiles, centres, halves, candidates):
-            if not near:
-                continue
-            q = Q[rows]
-            near = np.asarray(near)
-            Xl = self.X_[near]
-            inside = np.all(np.abs(Xl - centre) <= half, axis=1)
-            Xl, yl = Xl[inside], self.y_[near[inside]]
-            if len(yl) == 0:
-                continue
+        for rows, near in tiles(Q, self.X_, self.tree_, self.block, self.halo):
+            if len(near) == 0:
+                continue        # no sample near the tile: the prior answers
+            q, Xl, yl = Q[rows], self.X_[near], self.y_[near]
             K = self.kernel(Xl, Xl)
             K[np.diag_indices_from(K)] += jitter
             try:
@@ -306,8 +301,9 @@ class FieldEstimator:
 
     noise_model: ``turbulent`` (default): the GP with noise sd sqrt(absolute^2 + (relative F)^2)
     and gusts correlated over sample time, all six hyperparameters fitted to each sweep
-    (``estimation.turbulent``; its std is calibrated); ``white``: the paper's GP with one white
-    noise_std [N] (its std is too small when the noise grows with the force or comes in gusts).
+    (``estimation.turbulent``, tile by tile on large walls: ``estimation.local_turbulent``; its
+    std is calibrated); ``white``: the paper's GP with one white noise_std [N] (its std is too
+    small when the noise grows with the force or comes in gusts).
     min_samples: fewer finite samples than this is an error; max_gap [m]: a key point whose
     nearest sample is farther than this means the sweep missed part of the area.
     """
@@ -318,12 +314,20 @@ class FieldEstimator:
     signal_std: float | None = None
     min_samples: int = 50
     max_gap: float = 0.08
-    #: exact: one GP on all picked samples; local: ``LocalGaussianProcessField`` (large walls,
-    #: white noise only); auto: local above ``max_exact`` picked samples.
+    #: the turbulent model picks at least about this many samples: with fewer key points each
+    #: brings its nearest few (``closest_samples``); the white model keeps GET_CLOSEST's one
+    min_picked: int = 300
+    #: exact: one GP on all picked samples; local: the same model solved tile by tile for large
+    #: walls (``LocalTurbulentGaussianProcessField``, or ``LocalGaussianProcessField`` for the
+    #: white model); auto: local above ``max_exact`` picked samples. local_block [m]: the
+    #: tiles' side; local_halo [m]: a tile uses the samples this close to it.
     method: str = 'auto'
     max_exact: int = 2000
     local_block: float = 0.20
     local_halo: float = 0.15
+    #: turbulent model, local method: the hyperparameters are fitted on at most this many
+    #: picked samples (runs of ``fit_block`` spread over the sweep; a 36 x 36 wall picks ~10,000)
+    max_fit_samples: int = 2000
     #: white model: estimate length_scale, noise_std and signal_std from each sweep (type-II
     #: maximum likelihood inside the bounds below, starting from the values above); exact GP only.
     fit_hyperparameters: bool = False
@@ -358,8 +362,9 @@ class FieldEstimator:
             object.__setattr__(self, name, (lo, hi))
         if self.noise_model == 'turbulent':
             self.turbulence_start(1.0)             # validates the start values
-            TurbulentGaussianProcessField(bounds=self.fit_bounds, min_fit_samples=self.min_fit_samples,
-                                          block=self.fit_block)  # validates the fit settings
+            LocalTurbulentGaussianProcessField(  # validates the fit and tile settings
+                bounds=self.fit_bounds, min_fit_samples=self.min_fit_samples, block=self.fit_block,
+                tile=self.local_block, halo=self.local_halo, max_fit_samples=self.max_fit_samples)
 
     @property
     def fit_bounds(self) -> dict:
@@ -380,19 +385,25 @@ class FieldEstimator:
         estimated from positions/forces when fitted; ``reuse``: an earlier estimate of the same
         sweep whose fitted hyperparameters to take instead of fitting again)."""
         local = self.method == 'local' or (self.method == 'auto' and n_samples > self.max_exact)
-        if local:
-            return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
-                                             self.local_block, self.local_halo)
         old = getattr(reuse, 'gp', None)
         if self.noise_model == 'turbulent':
+            # the same model either way: a sweep's interim estimates may cross max_exact, and the
+            # hyperparameters fitted on the exact GP carry over to the tiled one (and back)
+            if local:
+                make = partial(LocalTurbulentGaussianProcessField, tile=self.local_block,
+                               halo=self.local_halo, max_fit_samples=self.max_fit_samples)
+            else:
+                make = TurbulentGaussianProcessField
             if isinstance(old, TurbulentGaussianProcessField) and (old.fitted_ or old.reused_):
-                gp = TurbulentGaussianProcessField(old.params_, self.fit_bounds, fit_parameters=False)
+                gp = make(old.params_, self.fit_bounds, fit_parameters=False)
                 gp.reused_ = True   # fitted values, carried on (they may be reused again)
                 return gp
             spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
-            return TurbulentGaussianProcessField(self.turbulence_start(spread), self.fit_bounds,
-                                                 min_fit_samples=self.min_fit_samples,
-                                                 block=self.fit_block)
+            return make(self.turbulence_start(spread), self.fit_bounds,
+                        min_fit_samples=self.min_fit_samples, block=self.fit_block)
+        if local:
+            return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
+                                             self.local_block, self.local_halo)
         if isinstance(old, GaussianProcessField) and self.fit_hyperparameters:
             return GaussianProcessField(old.length_scale, old.noise_std, old.signal_std)
         if self.fit_hyperparameters and positions is not None:
@@ -413,7 +424,8 @@ class FieldEstimator:
         if len(clean) < self.min_samples:
             raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
                              f'{self.min_samples} are needed: sweep longer or check the streams')
-        sub = closest_samples(clean, key_points)
+        sub = closest_samples(clean, key_points,
+                              self.min_picked if self.noise_model == 'turbulent' else 0)
         far = sub.key_distance > self.max_gap
         if required is not None:
             far &= np.asarray(required, dtype=bool)

@@ -122,6 +122,15 @@ def _diag(M: np.ndarray) -> np.ndarray:
     return np.einsum('...ii->...i', M)
 
 
+def gust_noise_cov(p: TurbulenceParameters, s: np.ndarray, lag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, T): the noise covariance [N^2] of samples with noise sd ``s`` (..., n) [N] and time
+    lags ``lag`` (..., n, n) [s] between them, and the time kernel exp(-lag / gust_time)."""
+    T = np.exp(-lag / p.gust_time)
+    R = p.gust_fraction * T
+    _diag(R)[...] = 1.0
+    return s[..., :, None] * R * s[..., None, :], T
+
+
 class _Design:
     """What the likelihood needs of samples, computed once: squared spatial distances [m^2],
     time lags [s] and forces [N], for one set (X (n, 2), y (n,), t (n,)) or a stack of equal
@@ -136,10 +145,8 @@ class _Design:
     def noise_cov(self, p: TurbulenceParameters, level) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(N, s, T): the noise covariance [N^2], per-sample sd [N], time kernel exp(-lag/tau)."""
         s = p.noise_sd(level)
-        T = np.exp(-self.lag / p.gust_time)
-        R = p.gust_fraction * T
-        _diag(R)[...] = 1.0
-        return s[..., :, None] * R * s[..., None, :], s, T
+        N, T = gust_noise_cov(p, s, self.lag)
+        return N, s, T
 
     def cov(self, p: TurbulenceParameters, level):
         E = np.exp(-self.sq / (2.0 * p.length_scale ** 2))
@@ -310,7 +317,9 @@ class TurbulentGaussianProcessField:
                 f'+ ({p.relative:.3g} F)^2), {p.gust_fraction:.2f} of its variance in gusts of '
                 f'{p.gust_time:.3g} s')
 
-    def fit(self, positions, forces, times) -> 'TurbulentGaussianProcessField':
+    def _take_samples(self, positions, forces, times) -> tuple:
+        """The samples as arrays in time order (X (n, 2) [m], y (n,) [N], t (n,) [s]), stored
+        with the prior mean; SweepError when they do not make a sweep."""
         X = np.asarray(positions, dtype=float).reshape(-1, 2)
         y = np.asarray(forces, dtype=float).ravel()
         t = np.asarray(times, dtype=float).ravel()
@@ -326,6 +335,12 @@ class TurbulentGaussianProcessField:
         X, y, t = X[order], y[order], t[order]
         self.X_, self.y_, self.t_ = X, y, t
         self.mean_ = float(np.mean(y))
+        return X, y, t
+
+    def _fit_parameters(self, X, y, t) -> TurbulenceParameters:
+        """The hyperparameters for these samples (time-ordered): fitted when asked and the
+        sweep is long enough, else the start values; sets ``params_``, ``fitted_`` and
+        ``evaluations_``."""
         self.fitted_ = bool(self.fit_parameters and len(y) >= self.min_fit_samples)
         self.evaluations_ = 0
         p = self.start.clipped(self.bounds)
@@ -333,6 +348,11 @@ class TurbulentGaussianProcessField:
             p, _, self.evaluations_ = fit_turbulence(X, y, t, p, self.bounds, block=self.block,
                                                      max_iter=self.max_iter)
         self.params_ = p
+        return p
+
+    def fit(self, positions, forces, times) -> 'TurbulentGaussianProcessField':
+        X, y, t = self._take_samples(positions, forces, times)
+        p = self._fit_parameters(X, y, t)
         self.level_ = local_level(X, y, t, p, self.mean_, self.block)
         K, _, _, _ = _Design(X, y, t).cov(p, self.level_)
         try:

@@ -8,7 +8,9 @@ mocap pose shows the plate within ``tolerance_m`` of the point and still
 (``coordination.held.Stillness``), then records the force over ``samples`` poses through the
 field estimator (begin_sweep / estimate: the refused field estimate still returns the pairs) and
 answers their mean. A plate that leaves the tolerance while recording fails the point (redo
-it). Whatever the outcome, the fans are then held off. ``cancel_iteration`` cancels it.
+it). Whatever the outcome, the fans are then held off. ``cancel_iteration`` cancels it. The
+procedure is ``coordination.hold_point``; this class wires it to the service, the placement
+client and the plate's poses.
 """
 from __future__ import annotations
 
@@ -18,15 +20,10 @@ import numpy as np
 from wind_shaper_msgs.srv import HoldPoint, Place
 
 from ..coordination import IterationStopped
-from ..coordination.held import Stillness
-from ..coordination.requests import check_hold_request
+from ..coordination.hold_point import PointRecorder, check_point, hold_point
 from ..core.errors import WindShaperError
-from ..experiment import check_design
 from ..ros import names
 
-DEFAULT_TOLERANCE_M, DEFAULT_SAMPLES, DEFAULT_TIMEOUT_S = 0.01, 20, 120.0
-#: Pose rate assumed for the recording's time limit (mocap runs at 100 Hz) [Hz].
-MIN_POSE_HZ = 10.0
 #: No answer leaves sooner than this after its request came [s]. Fast DDS drops a reply when
 #: the server has not yet discovered the caller's reply reader (it waits 100 ms for it), and a
 #: new command's first request follows its discovery at once: a refusal answered at once ("wait
@@ -35,107 +32,87 @@ MIN_ANSWER_S = 2.0
 
 
 class HoldService:
-    """hold_point requests for ``node`` (the coordinator; see the module docstring)."""
+    """hold_point requests for ``node`` (the coordinator; see the module docstring); also the
+    ``PointPorts`` that ``hold_point`` drives, forwarding the rig's ports."""
 
     def __init__(self, node, place_service: str):
         self.node = node
         self.active = False
-        self.stillness = Stillness()
+        self.recorder = PointRecorder()
         self._place = (node.create_client(Place, place_service, callback_group=node.callback_group)
                        if place_service else None)
-        self._recording = False
-        self._poses, self._strays = 0, 0
-        self._target = (0.0, 0.0, DEFAULT_TOLERANCE_M)
         node.create_service(HoldPoint, names.HOLD_POINT, self._handle,
                             callback_group=node.callback_group)
 
     def on_pose(self, x: float, y: float) -> None:
         if not self.active:
             return
-        self.stillness.add(time.monotonic(), x, y)
-        if self._recording:
-            self._poses += 1
-            tx, ty, tol = self._target
-            if np.hypot(x - tx, y - ty) > tol:
-                self._strays += 1
+        self.recorder.on_pose(time.monotonic(), x, y)
         self.node.poke()
 
+    # -- PointPorts -------------------------------------------------------------------------------
+    def hold(self, U: np.ndarray) -> None:
+        self.node.hold(U)
+
+    async def command_fans(self, U: np.ndarray) -> None:
+        await self.node.rig.command_fans(U)
+
+    def check_boundary(self) -> None:
+        self.node.rig.check_boundary()
+
+    async def place(self, x: float, y: float, timeout_s: float):
+        if self._place is None:   # a person carries the plate there
+            return None
+        return await self.node.rig.call(self._place, Place.Request(x=x, y=y),
+                                        'the plate placement (sim_tunnel or motion stage)', timeout_s)
+
+    def info(self, message: str) -> None:
+        self.node.get_logger().info(message)
+
+    async def wait_for(self, predicate, timeout_s: float) -> bool:
+        return await self.node.rig.wait_for(predicate, timeout_s)
+
+    async def begin_sweep(self) -> None:
+        await self.node.rig.begin_sweep()
+
+    async def estimate(self, k: int, U: np.ndarray):
+        return await self.node.rig.estimate(k, U)
+
+    # -- the service ------------------------------------------------------------------------------
     async def _handle(self, request: HoldPoint.Request, response: HoldPoint.Response):
         came = time.monotonic()
         response = await self._serve(request, response)
         early = MIN_ANSWER_S - (time.monotonic() - came)
         if early > 0:
-            await self.node.pause(early)
+            await self.node.rig.pause(early)
         return response
 
     async def _serve(self, request: HoldPoint.Request, response: HoldPoint.Response):
-        node = self.node
-        tol = request.tolerance_m if request.tolerance_m > 0 else DEFAULT_TOLERANCE_M
-        samples = int(request.samples) if request.samples > 0 else DEFAULT_SAMPLES
-        wait_s = request.timeout_s if request.timeout_s > 0 else DEFAULT_TIMEOUT_S
+        node, p = self.node, self.node.params
         with node.lock:
             busy = node.busy()
             if busy:
                 response.success, response.message = False, busy
                 return response
             try:
-                check_hold_request(node.limits, request.fan_names, request.pwm)
-                b = node.setup.shaping.bounds
-                U = check_design(list(request.fan_names), np.array([request.pwm], dtype=float),
-                                 ['this point'], node.setup.geometry.fans, b.u_min, b.u_max,
-                                 'hold_point').commands[0]
-                if not (np.isfinite(request.x) and np.isfinite(request.y)):
-                    raise WindShaperError(f'the point ({request.x}, {request.y}) is not finite')
+                point = check_point(node.limits, node.setup, request.fan_names, request.pwm,
+                                    request.x, request.y, request.tolerance_m, request.samples,
+                                    request.timeout_s)
             except (WindShaperError, ValueError, IndexError) as exc:
                 response.success = False
                 response.message = f'point refused, no fan was commanded: {exc}'
                 return response
-            node.begin_procedure(0.0, wait_s + samples / MIN_POSE_HZ + 4 * node.params.service_timeout_s
-                                 + node.params.apply_timeout_s + node.params.settle_s)
+            node.begin_procedure(0.0, point.time_limit(p.service_timeout_s, p.apply_timeout_s,
+                                                       p.settle_s))
             self.active = True
-        self.stillness.clear()
-        self._target = (float(request.x), float(request.y), tol)
-        where = f'({request.x:+.3f}, {request.y:+.3f}) m'
-        still_s = node.params.hold_still_s
+        self.recorder.start(point)
         try:
-            node.hold(U)
-            await node.command_fans(U)
-            node.check_boundary()
-            if self._place is not None:
-                moved = await node.call(self._place, Place.Request(x=request.x, y=request.y),
-                                        'the plate placement (sim_tunnel or motion stage)', wait_s)
-                if not moved.success:
-                    raise IterationStopped('failed', f'the plate could not be placed: {moved.message}')
-            else:
-                node.get_logger().info(f'hold the plate at {where} (tolerance {100 * tol:.1f} cm)')
-            still = await node.wait_for(lambda: self.stillness.verdict(*self._target, still_s) == '',
-                                        wait_s)
-            if not still:
-                raise IterationStopped('failed', f'the plate was not held still at {where} within '
-                                       f'{wait_s:g} s: {self.stillness.verdict(*self._target, still_s)}')
-            await node.begin_sweep()
-            self._poses, self._strays, self._recording = 0, 0, True
-            got = await node.wait_for(lambda: self._poses >= samples or self._strays > 0,
-                                      samples / MIN_POSE_HZ + node.params.service_timeout_s)
-            self._recording = False
-            answer = await node.estimate(-1, U)
-            if self._strays:
-                raise IterationStopped('failed', f'the plate left the point while recording '
-                                       f'({self._strays} pose(s) farther than {100 * tol:.1f} cm): '
-                                       f'hold it still and redo the point')
-            sweep = answer.sweep
-            if not got or sweep is None or len(sweep) == 0:
-                raise IterationStopped('failed', f'no (force, pose) pairs at {where} ({self._poses} '
-                                       f'poses): {answer.message}; check the force sensor and '
-                                       f'mocap streams')
-            near = np.hypot(sweep.positions[:, 0] - request.x, sweep.positions[:, 1] - request.y) <= tol
-            f, P = sweep.forces[near], sweep.positions[near]
+            result = await hold_point(point, self.recorder, self, still_s=p.hold_still_s,
+                                      service_timeout_s=p.service_timeout_s)
             response.success = True
-            response.force_mean, response.force_std = float(np.mean(f)), float(np.std(f))
-            response.n = int(near.sum())
-            response.x_mean, response.y_mean = (float(v) for v in P.mean(axis=0))
-            response.message = (f'{response.n} poses at {where}: {response.force_mean:.3f} ± '
-                                f'{response.force_std:.3f} N')
+            response.force_mean, response.force_std = result.force_mean, result.force_std
+            response.n, response.x_mean, response.y_mean = result.n, result.x_mean, result.y_mean
+            response.message = result.message
         except IterationStopped as stop:
             response.success = False
             response.message = f'point {stop.state}: {stop}'
@@ -143,7 +120,7 @@ class HoldService:
             node.get_logger().error(f'hold_point failed unexpectedly: {exc!r}')
             response.success, response.message = False, f'unexpected error: {exc!r}'
         finally:
-            self._recording = False
+            self.recorder.recording = False
             self.active = False
             node.hold(np.zeros(len(node.fan_names)))   # off between points, and after the last
             node.end_procedure()

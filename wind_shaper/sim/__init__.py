@@ -19,11 +19,12 @@ from .paths import RandomWalkPath, TourPath, path_from_config
 from .physics import BUILD_SEED, Imperfections, PlantConstants, ThrustCurve
 from .plant import PlantState, SimulatedTunnel
 from .unmodelled_effects import (OTHER_FORM, OUTSIDE_FRESH, OUTSIDE_LIBRARY, OUTSIDE_SECOND,
-                                 OUTSIDE_THIRD, CeilingDownwash, CoandaAttachment, DragLaw,
-                                 EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
+                                 OUTSIDE_THIRD, TIME_FAULTS, CeilingDownwash, CoandaAttachment,
+                                 DragLaw, EscCrosstalk, HoneycombBlockage, HubShadow, MocapLatency,
                                  JetDeflection, JetSpreading, NeighbourStarvation, PlenumStarvation,
-                                 QuadraticSwirl, SideDraft, StandWake, ThermalGradient, VaneRipple,
-                                 WallLeak, WallReflection, WallReturnFlow)
+                                 QuadraticSwirl, SensorZeroDrift, SideDraft, StandWake,
+                                 ThermalGradient, UnsettledFans, VaneRipple, WallLeak,
+                                 WallReflection, WallReturnFlow)
 
 __all__ = [
     'SimulatedTunnel', 'PlantState', 'PlantConstants', 'ThrustCurve', 'Imperfections', 'BUILD_SEED',
@@ -34,7 +35,7 @@ __all__ = [
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
     'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection', 'SupplySag',
-    'RecirculationCore',
+    'RecirculationCore', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
     'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',

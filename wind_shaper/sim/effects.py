@@ -94,6 +94,18 @@ class HiddenEffect:
         plate's own drag law; the identity for a plate whose drag follows the local force)."""
         return force
 
+    def running(self, previous: np.ndarray, commanded: np.ndarray, since: np.ndarray):
+        """The commands (K, n_fans) the fans run at ``since`` (K,) [s] after the command changed
+        from ``previous`` to ``commanded`` (n_fans,) [fraction], or None when they follow it at
+        once (the default). Sweeps only: a fault of the recording (see ``unmodelled_sensing``)."""
+        return None
+
+    def sensor_zero(self, clock: np.ndarray):
+        """The force sensor's zero [N] (scalar or (K,)) at recording times ``clock`` (K,) [s]
+        (the plant's clock: the sweeps' plate time laid end to end), added to every recorded
+        force; 0 for a sensor whose zero holds. Sweeps only (see ``unmodelled_sensing``)."""
+        return 0.0
+
     def recorded(self, positions: np.ndarray, dt: float) -> np.ndarray:
         """A sweep's true plate positions (n, 2) [m], sampled every ``dt`` [s] -> the positions
         the recording pairs with each force sample (motion capture and force sensor out of

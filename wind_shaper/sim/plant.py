@@ -95,6 +95,11 @@ class SimulatedTunnel:
         self._setup_jets()
         self._pwm = np.zeros(n)
         self.call_count = 0
+        # the recording clock [s] (sweeps' plate time end to end) and the last command change,
+        # for faults in time (``unmodelled_sensing``: a drifting sensor zero, fans still settling)
+        self.clock_s = 0.0
+        self._previous = np.zeros(n)
+        self._changed_at = 0.0
 
     def _setup_jets(self):
         c, side = self.constants, self.geometry.plate_side
@@ -112,7 +117,10 @@ class SimulatedTunnel:
     def apply(self, pwm) -> np.ndarray:
         """Command the fans [fraction per fan, fan order]; like the hardware, commands are clipped
         to [0, 1] and disabled fans held at 0. Returns what was applied."""
-        self._pwm = self._hardware(pwm)
+        new = self._hardware(pwm)
+        if not np.array_equal(new, self._pwm):
+            self._previous, self._changed_at = self._pwm, self.clock_s
+        self._pwm = new
         return self._pwm.copy()
 
     @property
@@ -134,11 +142,34 @@ class SimulatedTunnel:
         state = self.state(self._pwm)
         true_pos = (self.path(n, dt, self.geometry.sweep_radius, rng) if region is None
                     else self.path(n, dt, self.geometry.sweep_radius, rng, region=region))
-        forces = self.noise.forces(self._plate(state, true_pos), dt, rng)
+        clock = self.clock_s + np.arange(n) * dt
+        forces = self.noise.forces(self._sweep_forces(state, true_pos, clock), dt, rng)
+        for effect in self._pipeline:
+            forces = forces + effect.sensor_zero(clock)
         paired = true_pos
         for effect in self._pipeline:
             paired = effect.recorded(paired, dt)
+        self.clock_s += n * dt
         return Sweep(self.noise.positions(paired, rng), forces, np.arange(n) * dt, self._pwm.copy())
+
+    def _sweep_forces(self, state: PlantState, positions: np.ndarray, clock: np.ndarray,
+                      block_s: float = 0.1) -> np.ndarray:
+        """Noise-free plate forces (n,) [N] along a sweep: at the settled ``state``, except where
+        an effect has the fans still running toward the commands (``HiddenEffect.running``);
+        there the state follows the commands block by block (``block_s`` [s] each)."""
+        true = self._plate(state, positions)
+        since = clock - self._changed_at
+        for effect in self._pipeline:
+            running = effect.running(self._previous, self._pwm, since)
+            if running is None:
+                continue
+            moving = np.flatnonzero(np.max(np.abs(running - self._pwm[None]), axis=1) > 1e-4)
+            step = max(1, int(round(block_s * self.sample_rate_hz)))
+            for lo in range(0, len(moving), step):
+                rows = moving[lo:lo + step]
+                u = running[rows].mean(axis=0)
+                true[rows] = self._plate(self.state(u), positions[rows])
+        return true
 
     def sweep_chunks(self, max_samples: int = 1000, chunk_samples: int = 50, *,
                      rng: np.random.Generator | None = None, region=None):

@@ -4,6 +4,8 @@
 measures the noise, the command spread and the clocks; each later stage takes the ``Case`` and
 returns it with its own part filled in:
 
+0. ``time_checks.check_time``: does the residual depend on when a force was recorded
+   (``time``; ``held`` when a fault stops the naming of effects);
 1. ``selection.select``: screen and select candidates (``steps``, ``rankings``);
 2. ``checks.check_findings``: every registered check of each finding (``steps`` keeps what
    passed, ``demoted`` the rest, ``final`` the model with the findings);
@@ -66,6 +68,12 @@ class Case:
     baseline_raw: float
     sync: object = None
     noise_floor: NoiseFloor | None = None
+    #: the sweeps as given, in recording order (the time checks read them whole)
+    data: SweepSet | None = None
+    # time checks (``time_checks.check_time``): {name: TimeResult}; held: a fault in time
+    # stops the stages that would name effects
+    time: dict = field(default_factory=dict)
+    held: bool = False
     # selection
     steps: list = field(default_factory=list)
     rankings: list = field(default_factory=list)
@@ -154,6 +162,6 @@ def open_case(settings, model: Term, data: SweepSet, geometry: TunnelGeometry) -
                 screen=train.subset(slice(None, None, 2)),  # screening needs only a ranking
                 heldout=heldout, heldout_off=heldout_off, baseline=base, noise_sd=noise_sd,
                 baseline_rmse=ev['model_rmse'], baseline_raw=ev['raw'].rmse,
-                sync=check_sync(base.model, data) if s.check_clocks else None)
+                sync=check_sync(base.model, data) if s.check_clocks else None, data=data)
     case.noise_floor = case.floor_test(base.model)
     return case

@@ -51,8 +51,17 @@ keeps the findings and ``selected_`` every step of the selection in order.
 Reported parameters come from a refit on every training cell; their uncertainty is the larger of the
 Gauss-Newton standard error and a delete-one-sweep jackknife (sweeps are the independent units).
 
+Before any candidate is tried, the time checks (``time_checks``) ask whether the residual
+depends on when a force was recorded: the fans-off sweeps' zero, the recording order, the time
+since the commands changed, the time within a sweep. A fault in time (a drifting sensor zero,
+fans still settling when a sweep starts) makes every candidate fit the wrong thing: with
+``hold_on_time_fault`` no effect is then named, and the verdict ('time fault') says what was
+found, what to do at the rig, and which repair of the recorded sweeps to give
+(``time_repairs``: ``--zero-drift interpolate``, ``--skip-first S``).
+
 The work is a line of stages, each taking and returning the one ``case.Case``:
-``case.open_case`` (split, refit, noise) -> ``selection.select`` (screen and select) ->
+``case.open_case`` (split, refit, noise) -> ``time_checks.check_time`` (faults in time) ->
+``selection.select`` (screen and select) ->
 ``checks.check_findings`` (every check of each finding) -> ``family_forms.try_other_forms``
 (the other forms of a family that explains much but does not hold) -> ``rest.describe_rest``
 (what is left) -> ``verdict.word`` (the verdict). ``Diagnosis`` holds the settings, runs the stages and
@@ -75,6 +84,7 @@ from .fitting import FitResult
 from .library import Library
 from .rest import describe_rest
 from .selection import select
+from .time_checks import check_time
 from .trial import Trial, candidate_std, fit_mask
 from .wording import _bic_text, _change_text, drop_text  # noqa: F401  (the words, as before)
 
@@ -83,10 +93,14 @@ __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_
            'SPECIFIC_FAMILIES']
 
 #: The stages after ``open_case``, in order: each takes the ``Case`` and returns it.
-STAGES = (select, check_findings, try_other_forms, describe_rest, verdict.word)
+STAGES = (check_time, select, check_findings, try_other_forms, describe_rest, verdict.word)
+#: The stages that name effects or describe what they leave: skipped while a fault in time
+#: holds the diagnosis (``Case.held``).
+NAMING_STAGES = (select, check_findings, try_other_forms, describe_rest)
 
 #: The case's fields a fitted ``Diagnosis`` exposes with a trailing underscore (``steps_``, ...).
-_EXPOSED = tuple(f.name for f in fields(Case) if f.name not in ('settings', 'current', 'current_rmse'))
+_EXPOSED = tuple(f.name for f in fields(Case)
+                 if f.name not in ('settings', 'current', 'current_rmse', 'data'))
 
 
 class Diagnosis:
@@ -110,7 +124,10 @@ class Diagnosis:
     keep most of what it explains beside broader forms of its change (``specific``: the same
     change of every fan's jet, every jet pushed from the axis, bridges following the mean
     thrust; share ``min_specific``); check_clocks: say when the forces and the positions are out
-    of step (``sync.check_sync``, on the model as given).
+    of step (``sync.check_sync``, on the model as given); check_time: the time checks
+    (``time_checks``), each fault significant at ``time_z`` (a normal quantile, 4 by default:
+    a two-sided p of 6e-5, taken as a Student-t with few sweeps) and material (``material`` times the
+    noise); hold_on_time_fault: name no effect while a time check finds a fault.
     """
 
     def __init__(self, library: Library | None = None, *, cell: float = 0.04,
@@ -122,7 +139,8 @@ class Diagnosis:
                  check_min_sweeps: int = 4, check_tolerance: float = 0.1,
                  check_space: bool = True, check_beside: bool = True, check_load: bool = True,
                  check_range: bool = True, check_specific: bool = True,
-                 min_specific: float = 0.5, check_clocks: bool = True):
+                 min_specific: float = 0.5, check_clocks: bool = True,
+                 check_time: bool = True, time_z: float = 4.0, hold_on_time_fault: bool = True):
         self.library = library
         self.cell, self.test_fraction, self.test = cell, test_fraction, test
         self.min_gain, self.min_dbic, self.min_z, self.material = min_gain, min_dbic, min_z, material
@@ -138,6 +156,7 @@ class Diagnosis:
         self.check_load = check_load
         self.check_range = check_range
         self.check_clocks = check_clocks
+        self.check_time, self.time_z, self.hold_on_time_fault = check_time, time_z, hold_on_time_fault
         self.check_specific, self.min_specific = check_specific, min_specific
 
     # -- fit ----------------------------------------------------------------------------------
@@ -145,6 +164,8 @@ class Diagnosis:
         """Run the stages on ``model`` and the sweeps ``data`` of the tunnel ``geometry``."""
         case = open_case(self, model, data, geometry)
         for stage in STAGES:
+            if case.held and stage in NAMING_STAGES:
+                continue
             case = stage(case)
         self.case_ = case
         for name in _EXPOSED:
@@ -160,6 +181,11 @@ class Diagnosis:
     def ranking_(self) -> list[Trial]:
         """The first step's ranked table (every candidate against the refitted model)."""
         return self.rankings_[0] if self.rankings_ else []
+
+    def time_warning(self) -> str:
+        """What the time checks found and what to do ('' when the sweeps do not depend on when
+        they were recorded)."""
+        return verdict.time_warning(self.case_)
 
     def spread_warning(self) -> str:
         """What is wrong with data whose commands barely vary, and what to record instead

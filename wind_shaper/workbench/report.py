@@ -25,7 +25,8 @@ from ..core.geometry import TunnelGeometry  # noqa: E402
 from ..report.run_report import draw_fans  # noqa: E402
 
 __all__ = ['Report', 'plot_residual_map', 'plot_residual_maps', 'plot_fan_curves',
-           'plot_radial_angular', 'plot_measured_vs_model', 'plot_ranking', 'plot_closed_loop']
+           'plot_radial_angular', 'plot_measured_vs_model', 'plot_ranking', 'plot_closed_loop',
+           'residual_sections']
 
 
 def _json_default(obj):
@@ -250,3 +251,19 @@ def plot_closed_loop(comparison):
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def residual_sections(report: Report, analyses: dict, geometry: TunnelGeometry, key: str) -> None:
+    """The report's sections on where a model fails: the residual maps of every analysis
+    (``{label: residuals.ResidualAnalysis}``), then the last one's residual against each fan's
+    command and against radius and angle, and its structure in words. ``key`` prefixes the
+    figures' file names."""
+    report.figure(f'{key}_maps', plot_residual_maps(analyses, geometry),
+                  'GP-smoothed residual (measured - model) over the tunnel, fans drawn; right: its '
+                  'standard deviation', heading='Where the model fails')
+    last = list(analyses.values())[-1]
+    report.figure(f'{key}_fans', plot_fan_curves(last, geometry),
+                  'residual near each fan against that fan\'s command (share of the residual variance '
+                  'each fan\'s command explains)')
+    report.figure(f'{key}_radial', plot_radial_angular(last), 'residual against radius and angle')
+    report.bullets(last.describe(), heading='Structure of the residual')

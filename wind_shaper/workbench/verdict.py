@@ -2,7 +2,9 @@
 
 ``word`` sets the verdict: 'found' (findings passed every check), 'explained' (the held-out model
 error was not material against the noise to begin with, or the held-out residual is no more than
-the noise by the test of ``noise_floor``) or 'unexplained'. ``summary_text``
+the noise by the test of ``noise_floor``), 'time fault' (a time check found the
+sweeps depend on when they were recorded, and no effect is named until that is repaired) or
+'unexplained'. ``summary_text``
 writes it in plain words with the warnings about the data; ``checks_text`` lists every check's
 result for each finding; ``to_json`` is the diagnosis's part of summary.json. Forces [N].
 """
@@ -12,13 +14,17 @@ from .checks import CHECKS
 from .formula import formula_text
 from .discrepancy import outside_text
 from .wording import error_text
+from .time_checks import TIME_CHECKS, time_text
 
-__all__ = ['word', 'summary_text', 'warnings', 'spread_warning', 'checks_text', 'to_json']
+__all__ = ['word', 'summary_text', 'warnings', 'spread_warning', 'time_warning', 'checks_text',
+           'to_json']
 
 
 def word(case):
     """The stage: set ``case.verdict``."""
-    if case.steps:
+    if case.held:
+        case.verdict = 'time fault'
+    elif case.steps:
         case.verdict = 'found'
     elif (case.baseline_rmse < case.settings.material * case.noise_sd
           or (case.noise_floor is not None and case.noise_floor.within)):
@@ -45,10 +51,17 @@ def spread_warning(case) -> str:
             f'--design lhs:12 --out NAME` does that (see docs/workbench.md, "Data").')
 
 
+def time_warning(case) -> str:
+    """What the time checks found and what to do ('' when nothing, or when the verdict already
+    says it)."""
+    return '' if case.held else time_text(case)
+
+
 def warnings(case) -> list[str]:
-    """The warnings about the data: commands that barely vary, forces and positions out of step."""
+    """The warnings about the data: commands that barely vary, forces and positions out of step,
+    sweeps that depend on when they were recorded."""
     sync = case.sync.text() if case.sync is not None else ''
-    return [w for w in (spread_warning(case), sync) if w]
+    return [w for w in (spread_warning(case), sync, time_warning(case)) if w]
 
 
 def summary_text(case) -> str:
@@ -62,6 +75,11 @@ def _floor(test) -> float:
 
 def _verdict_text(case) -> str:
     base = error_text(case.baseline_rmse, _floor(case.noise_floor))
+    if case.verdict == 'time fault':
+        return (f'No effect is named on these sweeps yet: the held-out model error is '
+                f'{base} (noise {case.noise_sd:.3f} N), but part of the residual '
+                f'depends on when each force was recorded, and every candidate effect would be '
+                f'fitted to that. ' + time_text(case) + ' Then diagnose again.')
     if case.verdict == 'explained':
         test = f'; {case.noise_floor.text()}' if case.noise_floor is not None else ''
         return (f'Nothing to report: the model explains these sweeps to the noise level (held-out '
@@ -160,6 +178,8 @@ def to_json(case) -> dict:
                     'agree': round(case.sync.agree, 3), 'mse_drop': round(case.sync.drop, 4),
                     'per_sweep_s': [round(float(x), 4) for x in case.sync.per_sweep]}
                    if case.sync is not None else None),
+        'time': [r.to_json() for r in (case.time or {}).values()],
+        'time_checks': [{'check': c.name, 'question': c.question} for c in TIME_CHECKS.values()],
         'warnings': warnings(case),
         'checks': [{'check': c.name, 'question': c.question, 'refusal': c.refusal,
                     'setting': c.setting or None, 'stage': c.stage} for c in CHECKS.values()],

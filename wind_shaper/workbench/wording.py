@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['drop_text', 'pct_text', 'values_text', 'error_text']
+__all__ = ['drop_text', 'error_text', 'fixed_text', 'pct_text', 'values_text']
 
 
 def _change_text(gain: float) -> str:
@@ -54,3 +54,8 @@ def error_text(model_error: float, floor: float = 0.0) -> str:
     if model_error <= max(floor, 0.0005):
         return f'at the noise level (below {floor:.3f} N)' if floor >= 0.0005 else 'at the noise level'
     return f'{model_error:.3f} N'
+
+
+def fixed_text(x: float, digits: int = 3) -> str:
+    """A number with ``digits`` decimals, as the reports' tables show errors: '0.123'."""
+    return f'{x:.{digits}f}'

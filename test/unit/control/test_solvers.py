@@ -7,6 +7,7 @@ from scipy.optimize import lsq_linear
 from wind_shaper.core.errors import ConfigError
 from wind_shaper.estimation.field import (FieldEstimator, GaussianProcessField, LocalGaussianProcessField,
                                     TurbulentGaussianProcessField, fit_hyperparameters)
+from wind_shaper.estimation.local_turbulent import LocalTurbulentGaussianProcessField
 from wind_shaper.core.geometry import FanArray, TunnelGeometry, rect_key_points
 from wind_shaper.control import (AdaptiveUpdate, CommandBounds, FanBasis, PaperUpdate, PastIteration,
                                  SecantCorrection, ShapeFit, ShapingConfig, ShapingLoop, StoppingRule,
@@ -330,7 +331,8 @@ def test_local_gp_agrees_with_the_exact_gp(rng):
     local_mean, local_std = LocalGaussianProcessField(0.1, 0.1, block=0.2, halo=0.2).fit(P, F).predict(Q, True)
     assert np.sqrt(np.mean((local_mean - exact_mean) ** 2)) < 0.01
     assert np.max(np.abs(local_std - exact_std)) < 0.01
-    assert FieldEstimator().make_gp(5000).__class__ is LocalGaussianProcessField
+    assert FieldEstimator(noise_model='white').make_gp(5000).__class__ is LocalGaussianProcessField
+    assert FieldEstimator().make_gp(5000).__class__ is LocalTurbulentGaussianProcessField
     assert FieldEstimator(noise_model='white').make_gp(500).__class__ is GaussianProcessField
     assert FieldEstimator().make_gp(500).__class__ is TurbulentGaussianProcessField
     with pytest.raises(ConfigError, match='auto, exact or local'):

@@ -34,6 +34,19 @@ def test_closest_samples_drops_repeats_and_nan(rng):
     assert len(sub.forces) == 1 and sub.forces[0] == 1.0
 
 
+def test_few_key_points_bring_their_nearest_few_samples_many_bring_one(rng):
+    P = rng.uniform(-0.3, 0.3, (2000, 2))
+    sweep = Sweep(P, rng.normal(size=2000), np.arange(2000) / 50.0, np.zeros(7))
+    few = rng.uniform(-0.25, 0.25, (40, 2))
+    one = closest_samples(sweep, few)
+    more = closest_samples(sweep, few, min_picked=300)
+    assert len(one.forces) <= 40 and 250 <= len(more.forces) <= 320   # ceil(300 / 40) = 8 each
+    np.testing.assert_array_equal(one.key_distance, more.key_distance)   # coverage unchanged
+    many = rng.uniform(-0.25, 0.25, (400, 2))
+    np.testing.assert_array_equal(closest_samples(sweep, many).forces,
+                                  closest_samples(sweep, many, min_picked=300).forces)
+
+
 def test_gp_recovers_a_known_field_within_tolerance(rig, rng):
     sweep = random_sweep(rng, noise=0.02)
     est = FieldEstimator(length_scale=0.10, noise_std=0.05).estimate(sweep, rig.key_points)

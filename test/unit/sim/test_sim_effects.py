@@ -38,6 +38,17 @@ def test_every_effect_builds_round_trips_and_changes_the_field(name, rig, tunnel
         np.testing.assert_allclose(late.forces, plain.forces)
         assert np.max(np.abs(late.positions - plain.positions)) > 0.005
         return
+    if (type(effect).sensor_zero is not HiddenEffect.sensor_zero
+            or type(effect).running is not HiddenEffect.running):  # a fault in time: sweeps only
+        plain, carried = tunnel, tunnel.with_effects([effect])
+        np.testing.assert_allclose(carried.true_field(pwm, rig.key_points),
+                                   plain.true_field(pwm, rig.key_points))
+        for t in (plain, carried):
+            t.sweep(1000, rng=np.random.default_rng(2))   # 20 s of recording time first
+            t.apply(pwm)
+        a, b = (t.sweep(200, rng=np.random.default_rng(3)) for t in (plain, carried))
+        assert np.max(np.abs(b.forces - a.forces)) > 0.02
+        return
     changed = tunnel.with_effects([effect]).true_field(pwm, rig.key_points)
     assert np.max(np.abs(changed - tunnel.true_field(pwm, rig.key_points))) > 0.02
 

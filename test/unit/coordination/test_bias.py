@@ -1,0 +1,73 @@
+"""coordination.experiment: biasing the force sensor in a designed experiment (bias_zero), opt-in:
+never by default, on the fans-off rows once they settled, or before every sweep with the fans
+off; the plan is pure logic, and run_experiment asks the port in the right order."""
+import asyncio
+
+import numpy as np
+import pytest
+
+from wind_shaper.app import Setup
+from wind_shaper.coordination import BIAS_MODES, Experiment, FieldAnswer, bias_plan, run_experiment
+from wind_shaper.coordination.experiment import BIAS_AT_ROW, BIAS_BEFORE_ROW, NO_BIAS
+from wind_shaper.experiment import DesignError, make_design
+from sim_ports import SimPorts
+
+TABLE = np.array([[0.0, 0.0], [0.3, 0.5], [0.0, 0.0], [0.6, 0.0]])
+
+
+def test_the_plan_biases_only_with_every_fan_off_and_never_by_default():
+    assert bias_plan(TABLE, 'never') == [NO_BIAS] * 4
+    assert bias_plan(TABLE, 'fans_off') == [BIAS_AT_ROW, NO_BIAS, BIAS_AT_ROW, NO_BIAS]
+    assert bias_plan(TABLE, 'every_sweep') == [BIAS_AT_ROW, BIAS_BEFORE_ROW, BIAS_AT_ROW,
+                                               BIAS_BEFORE_ROW]
+    assert set(BIAS_MODES) == {'never', 'fans_off', 'every_sweep'}
+
+
+def test_an_unknown_mode_is_refused_with_the_modes_it_knows():
+    with pytest.raises(DesignError, match='never, fans_off, every_sweep'):
+        bias_plan(TABLE, 'always')
+
+
+class BiasPorts(SimPorts):
+    """SimPorts that log the fans' commands and the bias requests in order."""
+
+    def __init__(self, setup):
+        super().__init__(setup)
+        self.log = []
+
+    async def command_fans(self, U):
+        self.log.append(('fans', tuple(np.round(U, 3))))
+        await super().command_fans(U)
+
+    async def estimate(self, k, U, plan=None):  # the estimate is not what this test is about
+        n = len(self.key_points)
+        return FieldAnswer(True, '', self.key_points, np.zeros(n), np.ones(n), self.pooled(U), 1000, 0.01)
+
+    async def bias_sensor(self):
+        assert np.all(self.sim.pwm == 0), 'the sensor is biased only with every fan off'
+        self.log.append(('bias',))
+
+
+@pytest.fixture(scope='module')
+def setup():
+    return Setup.load()
+
+
+def _run(setup, tmp_path, mode):
+    b = setup.shaping.bounds
+    d = make_design('lhs:4', setup.geometry.fans, b.u_min, b.u_max, seed=0)  # fans off first and last
+    exp = Experiment.open(setup, tmp_path, mode, d.fan_names, d.commands, d.labels, 'lhs:4')
+    ports = BiasPorts(setup)
+    asyncio.run(run_experiment(exp, ports, max_sweeps=1, bias_zero=mode))
+    return ports.log
+
+
+def test_run_experiment_biases_after_the_fans_off_rows_settle_or_before_every_row(setup, tmp_path):
+    log = _run(setup, tmp_path, 'fans_off')
+    assert [e[0] for e in log] == ['fans', 'bias', 'fans', 'fans', 'fans', 'bias']
+    log = _run(setup, tmp_path, 'every_sweep')
+    kinds = [e[0] for e in log]
+    assert kinds.count('bias') == 4
+    # a fans-on row: fans off, bias, then the row's commands
+    i = kinds.index('bias', 2)
+    assert log[i - 1][0] == 'fans' and not any(log[i - 1][1]) and any(log[i + 1][1])

@@ -1,0 +1,46 @@
+"""coordination.requests.read_model and why: a set_model request's model read from its text or
+a file for a shaping run, and the words of a refusal (no rclpy)."""
+import pytest
+
+from wind_shaper.app import Setup
+from wind_shaper.coordination import ShapingRun
+from wind_shaper.coordination.requests import read_model, why
+from wind_shaper.core.errors import ConfigError, WindShaperError
+from wind_shaper.core.limits import Limits
+
+
+@pytest.fixture(scope='module')
+def setup():
+    return Setup.load()
+
+
+@pytest.fixture
+def run(setup, tmp_path):
+    return ShapingRun.open(setup, tmp_path, 'r', 'parabolic')
+
+
+def test_the_model_comes_from_the_text_when_there_is_one(setup, run):
+    text = (setup.config_dir / 'model.yaml').read_text()
+    got, source, model = read_model(run, Limits(), text, '/ignored/when/text/is/given.yaml')
+    assert got == text and source == 'the model_yaml text' and model is not None
+
+
+def test_else_from_the_file(setup, run):
+    path = str(setup.config_dir / 'model.yaml')
+    got, source, model = read_model(run, Limits(), '  \n', path)
+    assert source == path and got == (setup.config_dir / 'model.yaml').read_text()
+
+
+def test_no_text_and_no_file_or_a_missing_one_is_refused(run, tmp_path):
+    with pytest.raises(ConfigError, match='give a model file'):
+        read_model(run, Limits(), '', '')
+    with pytest.raises(ConfigError, match='cannot read .*nope.yaml'):
+        read_model(run, Limits(), '', str(tmp_path / 'nope.yaml'))
+    with pytest.raises(ConfigError):
+        read_model(run, Limits(), 'not: a model', '')
+
+
+def test_a_refusal_says_a_known_error_plainly_and_names_anything_else_shortly():
+    assert why(WindShaperError('the target is unknown')) == 'the target is unknown'
+    text = why(KeyError('x' * 5000))
+    assert text.startswith('unexpected KeyError: ') and len(text) < 1000

@@ -1,0 +1,64 @@
+"""Faults in time in the simulated tunnel (sim.unmodelled_sensing): the sensor's zero drifting over
+the recording, fans that reach a new command through a first-order lag; tunnels without them
+sweep exactly as before."""
+import numpy as np
+import pytest
+
+from wind_shaper.app import Setup
+from wind_shaper.sim import EffectError, SensorZeroDrift, UnsettledFans, make_effect
+
+
+@pytest.fixture(scope='module')
+def setup():
+    return Setup.load()
+
+
+def _sweeps(sim, commands, n=500):
+    out = []
+    for u in commands:
+        sim.apply(np.full(sim.geometry.fans.n_fans, u))
+        out.append(sim.sweep(n))
+    return out
+
+
+def test_the_zero_drifts_with_recording_time_fans_on_or_off(setup):
+    clean = _sweeps(setup.make_sim(seed=1), [0.0, 0.5, 0.0])
+    drift = _sweeps(setup.make_sim(seed=1, effects=[SensorZeroDrift(rate=0.01)]), [0.0, 0.5, 0.0])
+    # 500 samples at 50 Hz: each sweep is 10 s of the recording clock
+    for k, (a, b) in enumerate(zip(clean, drift)):
+        t = 10.0 * k + a.times
+        assert np.allclose(b.forces - a.forces, 0.01 * t)
+        assert np.allclose(a.positions, b.positions)
+
+
+def test_a_random_walk_of_the_zero_is_one_path_per_seed(setup):
+    a = _sweeps(setup.make_sim(seed=1, effects=[SensorZeroDrift(rate=0.0, walk=0.05, walk_seed=3)]), [0.0] * 2)
+    b = _sweeps(setup.make_sim(seed=1, effects=[SensorZeroDrift(rate=0.0, walk=0.05, walk_seed=3)]), [0.0] * 2)
+    clean = _sweeps(setup.make_sim(seed=1), [0.0] * 2)
+    walk = np.concatenate([x.forces - c.forces for x, c in zip(a, clean)])
+    assert np.allclose(walk, np.concatenate([x.forces - c.forces for x, c in zip(b, clean)]))
+    assert 0.01 < np.std(walk) < 0.5 and walk[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_unsettled_fans_read_the_previous_commands_first(setup):
+    clean = _sweeps(setup.make_sim(seed=2), [0.0, 0.6, 0.6])
+    lag = _sweeps(setup.make_sim(seed=2, effects=[UnsettledFans(tau=1.5)]), [0.0, 0.6, 0.6])
+    assert np.allclose(lag[0].forces, clean[0].forces)          # no change before it
+    short = clean[1].forces - lag[1].forces                      # spinning up: too little force
+    assert np.mean(short[:25]) > 0.5 * np.mean(clean[1].forces[:25])     # the first 0.5 s
+    assert abs(np.mean(short[-100:])) < 0.01 * np.mean(clean[1].forces[-100:])  # settled
+    # same commands as before: only what is left of the last change (exp(-10 / 1.5) = 0.1 %)
+    assert np.allclose(lag[2].forces, clean[2].forces, atol=0.02)
+
+
+def test_a_wait_before_the_sweep_lets_the_fans_settle(setup):
+    clean = _sweeps(setup.make_sim(seed=2), [0.0, 0.6])
+    waited = _sweeps(setup.make_sim(seed=2, effects=[UnsettledFans(tau=1.0, wait=15.0)]), [0.0, 0.6])
+    assert np.allclose(waited[1].forces, clean[1].forces, atol=1e-3)
+
+
+def test_time_faults_are_registered_by_name_and_bounded():
+    assert isinstance(make_effect('sensor_zero_drift'), SensorZeroDrift)
+    assert make_effect('unsettled_fans', tau=2.0).tau == 2.0
+    with pytest.raises(EffectError, match='physical bounds'):
+        UnsettledFans(tau=-1.0)
