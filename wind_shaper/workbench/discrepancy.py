@@ -493,7 +493,7 @@ def outside_text(fit: DiscrepancyFit) -> str:
     after = error_text(fit.heldout_after, fit.error_floor)
     if fit.offered:
         tail = (f' Added to the model it lowers the held-out model error from {before} to '
-                f'{after}, so it is a stable pattern of position and command: `wind-shaper model '
+                f'{after.removeprefix("at ")}, so it is a stable pattern of position and command: `wind-shaper model '
                 f'add --effect discrepancy` (or --from-diagnosis with this summary.json) adds it as a '
                 f'term, and the loop then shapes with it while the physics is still unknown.')
     else:

@@ -10,7 +10,7 @@ refusal stands, the family's other forms (``Candidate.other_form``: for swirl, t
 in the CCW minus CW thrust, in the sign of the imbalance, in the total thrust) are fitted beside
 the findings that passed, judged by the guard, and the first that passes it goes through every
 check of a finding (``checks.check_findings``); one that holds replaces the refused candidate
-as a finding. When none holds, the refused candidate carries a family-level note
+as a finding. When none holds, a candidate refused across sweeps carries a family-level note
 (``Trial.family_note``: "the field turns with the CW/CCW balance, but not as the swirl
 candidate has it") naming the forms tried, so the lab learns which physics is at work even
 though no form of it can be reported. Forces [N].
@@ -103,7 +103,10 @@ def try_other_forms(case):
                 case.steps = kept  # beside the form a finding failed: check them as they were
                 check_findings(case)
             case.demoted = demoted  # the form failed a check: the findings stand as before
-        if holds is None:
+        # the family-level words need the family's candidate to have held on the held-out
+        # sweeps and failed only across sweeps; a candidate the guard refused is too uncertain
+        # to say the field does what its family says
+        if holds is None and _refused_across_sweeps(refused):
             refused.family_note = (f'{FAMILY_WORDS[family]}'
                                    + (f' (tried as well: {"; ".join(c.title for c in tried)}; none '
                                       f'passes the guard and every check)' if tried else ''))

@@ -193,5 +193,5 @@ def formula_text(fit: FormulaFit, floor: float = 0.0) -> str:
             f'residual = {fit.term.formula()}, with R = {fit.term.radius:.2f} m, T = mean U^2 (the total '
             f'thrust), B = the CCW minus the CW fans\' mean U^2, bumps {100 * fit.term.bump_width:.0f} cm '
             f'wide; it lowers the held-out model error from {error_text(fit.heldout_before, floor)} to '
-            f'{error_text(fit.heldout_after, floor)}. That is an effect of simple form the library does not name; '
+            f'{error_text(fit.heldout_after, floor).removeprefix("at ")}. That is an effect of simple form the library does not name; '
             f'`wind-shaper model add --effect formula` adds it.')

@@ -59,7 +59,7 @@ def test_no_error_is_printed_as_zero_below_the_noise():
                          heldout_before=0.06, heldout_after=0.0, error_floor=0.02, sample_noise=0.08,
                          below_noise=True)
     text = outside_text(fit)
-    assert 'at the noise level' in text and text.startswith('Below the noise')
+    assert 'from 0.060 N to the noise level (below 0.020 N)' in text and text.startswith('Below the noise')
 
 
 def test_no_patch_is_described_larger_than_the_tunnel(wb_setup):
