@@ -13,6 +13,8 @@ from bench_module import BENCH, load_bench  # noqa: E402
 
 #: script -> its quickest arguments (the results file is added: --json in tmp_path)
 QUICK = {
+    'coverage': ['--effects', 'background_draft', '--sizes', '1', '--seeds', '1', '--clean', '1',
+                 '--sweeps', '6', '--samples', '300', '--jobs', '1'],
     'field_std': ['--quick'],
     'scale': ['--quick'],
     'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',

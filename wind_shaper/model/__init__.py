@@ -1,6 +1,6 @@
 """The tunnel's force model Phi(U, z) [N]: ``terms`` (the composable-term machinery and the
 ``TERMS`` registry), ``prior`` (the paper's FanJets + CentralRing), ``fanwise`` (the fan-resolved
-protocol, tree helpers, Wrapper), ``fan_effects`` and ``flow_effects`` (the candidate effects),
+protocol, tree helpers, Wrapper), ``fan_effects``, ``flow_effects`` and ``swirl_forms`` (the candidate effects),
 ``modelfile`` (save/load), ``plugins`` (user terms) and ``calibration`` (batch and fit).
 
 Import from here (``from wind_shaper.model import FanGain``): every module is imported below, so
@@ -16,6 +16,7 @@ from .fan_effects import (ALL_FANS, FanCurve, FanElongation, FanGain, FanPush, F
                           FanShift, FanWidth, FanWrapper)
 from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
                            SwirlQuadratic, WallLayer)
+from .swirl_forms import SWIRL_LAWS, SwirlFollows
 from .discrepancy import MODE_NAMES, CommandScale, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_error, model_from_text, save_model
 from .plugins import ENV_VAR, HOW_TO_LOAD, env_plugins, load_plugin, load_plugins, plugin_families
@@ -36,6 +37,8 @@ __all__ = [
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
     'WallLayer',
+    # swirl_forms: other laws of the swirl family's angle
+    'SwirlFollows', 'SWIRL_LAWS',
     # discrepancy: what the library does not explain, without physics
     'Discrepancy', 'FieldFormula', 'CommandScale', 'command_features', 'feature_words', 'MODE_NAMES',
     # modelfile: model files

@@ -28,7 +28,7 @@ from .library import Library, _pm, apply_candidate, default_library
 from .metrics import HeldOut
 from .report import Report, plot_closed_loop, residual_sections
 from .residuals import analyse_residuals
-from .wording import fixed_text
+from .wording import error_text, fixed_text
 
 __all__ = ['AddOutcome', 'add_command', 'model_with_additions']
 
@@ -110,7 +110,7 @@ def _added_text(entry: dict) -> str:
 def _error_change(before: float, after: float, floor: float) -> tuple[str, bool]:
     """The held-out model error before -> after in words, and whether the old model was already
     below the noise level ``floor`` [N] (then no % drop is claimed: the sweeps cannot show one)."""
-    head = f'held-out model error {before:.3f} N -> {after:.3f} N'
+    head = f'held-out model error {error_text(before)} -> {error_text(after)}'
     if before < floor:
         if after < floor:
             return (f'{head}: both below the noise level ({floor:.3f} N), so these sweeps cannot '

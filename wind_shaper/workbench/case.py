@@ -28,6 +28,7 @@ from .errors import FitError
 from .fitting import FitResult, fit_model
 from .library import Library, apply_candidate, default_library
 from .metrics import HeldOut
+from .noise_floor import NoiseFloor, noise_floor_test
 from .sync import check_sync
 from .trial import fit_mask
 
@@ -46,7 +47,8 @@ class Case:
     the split; train, screen: the training cells (all, every second); heldout, heldout_off: the
     held-out sweeps (all; fans off and on, or None); baseline: the refit of ``model``;
     noise_sd [N]; baseline_rmse, baseline_raw [N]: its held-out model and raw errors; sync: the
-    clocks' check (or None)."""
+    clocks' check (or None); noise_floor: the baseline's held-out residual tested against the
+    noise (``noise_floor``), final_floor: the same for the model with the findings."""
 
     settings: object
     geometry: TunnelGeometry
@@ -65,6 +67,7 @@ class Case:
     baseline_rmse: float
     baseline_raw: float
     sync: object = None
+    noise_floor: NoiseFloor | None = None
     #: the sweeps as given, in recording order (the time checks read them whole)
     data: SweepSet | None = None
     # time checks (``time_checks.check_time``): {name: TimeResult}; held: a fault in time
@@ -82,6 +85,7 @@ class Case:
     final: FitResult | None = None
     final_rmse: float = float('nan')
     final_raw: float = float('nan')
+    final_floor: NoiseFloor | None = None
     # what is left
     discrepancy: object = None
     formula: object = None
@@ -93,6 +97,14 @@ class Case:
         """The held-out (model error, raw error) of ``model`` [N]."""
         ev = self.heldout.evaluate(model)
         return ev['model_rmse'], ev['raw'].rmse
+
+    def floor_test(self, model: Term) -> NoiseFloor:
+        """``model``'s held-out residual tested against the noise (``noise_floor``): the
+        noise's own uncertainty counts when it was estimated from the sweeps, not when given."""
+        d = self.heldout.data
+        given = self.settings.noise_sd is not None
+        return noise_floor_test(d.y - model(d.U, d.Z), d.sweep, self.noise_sd,
+                                resolution=float('nan') if given else self.heldout.resolution)
 
     def rebuild(self, steps: list) -> FitResult:
         """The baseline model with the effects of ``steps`` added, refitted on the training
@@ -144,10 +156,12 @@ def open_case(settings, model: Term, data: SweepSet, geometry: TunnelGeometry) -
                        'than once) or give the noise per sample (noise_sd, --noise-sd)')
     heldout.noise_sd = noise_sd
     ev = heldout.evaluate(base.model)
-    return Case(settings=s, geometry=geometry, library=library, model=model,
+    case = Case(settings=s, geometry=geometry, library=library, model=model,
                 command_spread=spread, low_spread=spread['median'] < s.min_spread,
                 train_sweeps=train_sweeps, test_sweeps=test_sweeps, train=train,
                 screen=train.subset(slice(None, None, 2)),  # screening needs only a ranking
                 heldout=heldout, heldout_off=heldout_off, baseline=base, noise_sd=noise_sd,
                 baseline_rmse=ev['model_rmse'], baseline_raw=ev['raw'].rmse,
                 sync=check_sync(base.model, data) if s.check_clocks else None, data=data)
+    case.noise_floor = case.floor_test(base.model)
+    return case

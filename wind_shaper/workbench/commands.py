@@ -31,7 +31,7 @@ from .report import (Report, plot_discrepancy, plot_measured_vs_model, plot_rank
 from .residuals import analyse_residuals
 from .suggest import suggest_sweeps
 from .time_checks.stage import time_rows
-from .wording import fixed_text
+from .wording import error_text, fixed_text
 
 __all__ = ['simulated_sweeps', 'fit_command', 'compare_command', 'diagnose_command', 'add_command',
            'parse_spec', 'model_with_additions', 'FitOutcome', 'AddOutcome', '_added_text']
@@ -91,7 +91,8 @@ def fit_command(model: Term, data: SweepSet, geometry: TunnelGeometry, out, *,
         rows.append(['held out (raw samples)', fixed_text(h.rmse), fixed_text(h.r2, 4), fixed_text(h.max_error), fixed_text(h.bias), h.n])
     rep.table(['data', 'RMSE [N]', 'R²', 'largest error [N]', 'bias [N]', 'n'], rows, heading='Scores')
     if held is not None:
-        rep.text(f'Held-out model error (measurement noise removed): {held["model_rmse"]:.3f} N; the '
+        rep.text(f'Held-out model error (measurement noise removed): '
+                 f'{error_text(held["model_rmse"], held.get("resolution", 0.0))}; the '
                  f'measurement noise is {held["noise_sd"]:.3f} N per sample.')
     per = [[k, fixed_text(s.rmse), fixed_text(s.r2, 4), fixed_text(s.max_error), s.n] for k, s in train_scores['per_sweep'].items()]
     if held is not None:

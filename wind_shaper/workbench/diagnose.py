@@ -62,8 +62,9 @@ found, what to do at the rig, and which repair of the recorded sweeps to give
 The work is a line of stages, each taking and returning the one ``case.Case``:
 ``case.open_case`` (split, refit, noise) -> ``time_checks.check_time`` (faults in time) ->
 ``selection.select`` (screen and select) ->
-``checks.check_findings`` (every check of each finding) -> ``rest.describe_rest`` (what is
-left) -> ``verdict.word`` (the verdict). ``Diagnosis`` holds the settings, runs the stages and
+``checks.check_findings`` (every check of each finding) -> ``family_forms.try_other_forms``
+(the other forms of a family that explains much but does not hold) -> ``rest.describe_rest``
+(what is left) -> ``verdict.word`` (the verdict). ``Diagnosis`` holds the settings, runs the stages and
 exposes the case's results with a trailing underscore.
 """
 from __future__ import annotations
@@ -78,6 +79,7 @@ from .checks import CHECKS, Round, check_findings
 from .checks.both_sides import ONE_JET_FAMILIES
 from .checks.specific import SPECIFIC_FAMILIES, broader_forms, every_fan_form, mean_thrust_form
 from .data import SweepSet
+from .family_forms import try_other_forms
 from .fitting import FitResult
 from .library import Library
 from .rest import describe_rest
@@ -91,10 +93,10 @@ __all__ = ['Diagnosis', 'Trial', 'fit_mask', 'candidate_std', 'drop_text', 'MIN_
            'SPECIFIC_FAMILIES']
 
 #: The stages after ``open_case``, in order: each takes the ``Case`` and returns it.
-STAGES = (check_time, select, check_findings, describe_rest, verdict.word)
+STAGES = (check_time, select, check_findings, try_other_forms, describe_rest, verdict.word)
 #: The stages that name effects or describe what they leave: skipped while a fault in time
 #: holds the diagnosis (``Case.held``).
-NAMING_STAGES = (select, check_findings, describe_rest)
+NAMING_STAGES = (select, check_findings, try_other_forms, describe_rest)
 
 #: The case's fields a fitted ``Diagnosis`` exposes with a trailing underscore (``steps_``, ...).
 _EXPOSED = tuple(f.name for f in fields(Case)

@@ -25,6 +25,7 @@ from ..core.geometry import TunnelGeometry
 from ..model import CommandScale, Discrepancy, Product, Term, command_features, feature_words
 from .data import FitData
 from .residuals import disc_grid
+from .wording import error_text
 
 #: What Kennedy and O'Hagan's scale of the model follows (``CommandScale``): a fixed share of
 #: the field, and one that grows with the total thrust (a shared supply or inlet that sags as
@@ -56,6 +57,12 @@ class DiscrepancyFit:
     # model's own field (``base``, the model the residual was taken from) the tunnel adds
     scale: CommandScale | None = None
     base: Term | None = None
+    # set by the diagnosis (``rest``): the smallest held-out model error the noise lets the
+    # sweeps resolve [N] (smaller reads "at the noise level"), one sample's noise [N], and
+    # whether the model error it describes is smaller than that noise
+    error_floor: float = 0.0
+    sample_noise: float = float('nan')
+    below_noise: bool = False
 
     def added_to(self, model: Term) -> Term:
         """``model`` with the discrepancy: model + term, and with a scale model x (1 + s(U)) +
@@ -80,7 +87,7 @@ class DiscrepancyFit:
         return {'width_m': self.term.width, 'bumps': len(self.term.centres),
                 'features': list(self.term.features), 'noise_sd_N': round(self.noise_sd, 5),
                 'log_evidence': round(self.log_evidence, 2), 'cv_rmse_N': round(self.cv_rmse, 5),
-                'train_residual_rms_N': round(self.train_rms, 5),
+                'train_residual_rms_N': round(self.train_rms, 5), 'below_noise': self.below_noise,
                 'heldout_model_rmse_N': {'without': round(self.heldout_before, 5),
                                          'with': round(self.heldout_after, 5)},
                 'offered': bool(self.offered), 'readings': self.readings,
@@ -357,11 +364,19 @@ def describe_map(values: np.ndarray, grid: np.ndarray, geometry: TunnelGeometry,
         cov = np.cov((pts - c).T, aweights=w) if len(pts) > 2 else np.eye(2) * 1e-4
         lam, vec = np.linalg.eigh(cov)
         lam = np.maximum(lam, 1e-8)
-        long_, wide = 4 * np.sqrt(lam[1]), 4 * np.sqrt(lam[0])
+        # +-2 sd of the weighted spread is the region's extent; nothing in the tunnel is wider
+        # than the tunnel, and a region that spans most of it is no patch
+        extent = 2 * geometry.wall_radius
+        long_, wide = min(4 * np.sqrt(lam[1]), extent), min(4 * np.sqrt(lam[0]), extent)
         angle = (np.degrees(np.arctan2(vec[1, 1], vec[0, 1])) + 90) % 180 - 90
-        shape = (f'a strip along {angle:.0f} deg from +x, about {100 * long_:.0f} cm long and '
-                 f'{100 * wide:.0f} cm wide' if long_ >= 2.5 * wide
-                 else f'a patch about {100 * long_:.0f} cm across')
+        if long_ >= 0.75 * extent:
+            shape = (f'a region across most of the tunnel (about {100 * long_:.0f} cm of its '
+                     f'{100 * extent:.0f} cm)')
+        elif long_ >= 2.5 * wide:
+            shape = (f'a strip along {angle:.0f} deg from +x, about {100 * long_:.0f} cm long and '
+                     f'{100 * wide:.0f} cm wide')
+        else:
+            shape = f'a patch about {100 * long_:.0f} cm across'
         return (f'local: {shape}, centred at ({c[0]:+.2f}, {c[1]:+.2f}) m {near} (the model is {side} '
                 f'there by up to {amount(vmax)})')
     return (f'spread over the tunnel, largest at ({where[0]:+.2f}, {where[1]:+.2f}) m {near} (the model '
@@ -470,14 +485,19 @@ def outside_text(fit: DiscrepancyFit) -> str:
     head = ('What the residual looks like (a discrepancy model: a Gaussian process over position and '
             'the fans\' commands, fitted to the training sweeps\' residual; it names no physics): '
             + ' '.join(fit.words))
-    before, after = fit.heldout_before, fit.heldout_after
+    if fit.below_noise:
+        head = (f'Below the noise: the model error left ({error_text(fit.heldout_before, fit.error_floor)}) '
+                f'is smaller than one sample\'s noise ({fit.sample_noise:.3f} N), though the held-out '
+                f'sweeps resolve it; read what follows as a faint pattern, not a finding. ' + head)
+    before = error_text(fit.heldout_before, fit.error_floor)
+    after = error_text(fit.heldout_after, fit.error_floor)
     if fit.offered:
-        tail = (f' Added to the model it lowers the held-out model error from {before:.3f} N to '
-                f'{after:.3f} N, so it is a stable pattern of position and command: `wind-shaper model '
+        tail = (f' Added to the model it lowers the held-out model error from {before} to '
+                f'{after.removeprefix("at ")}, so it is a stable pattern of position and command: `wind-shaper model '
                 f'add --effect discrepancy` (or --from-diagnosis with this summary.json) adds it as a '
                 f'term, and the loop then shapes with it while the physics is still unknown.')
     else:
-        tail = (f' It does not carry over to the held-out sweeps (model error {before:.3f} N -> '
-                f'{after:.3f} N): the residual is not a stable pattern of position and these command '
+        tail = (f' It does not carry over to the held-out sweeps (model error {before} -> '
+                f'{after}): the residual is not a stable pattern of position and these command '
                 f'features, so it is not offered as a term.')
     return head + tail

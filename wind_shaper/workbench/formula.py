@@ -27,6 +27,7 @@ from ..core.geometry import TunnelGeometry
 from ..model import MODE_NAMES, FieldFormula, Term, command_features
 from .consistency import judge_spread
 from .data import FitData
+from .wording import error_text
 
 __all__ = ['FormulaFit', 'fit_formula', 'formula_text']
 
@@ -183,13 +184,14 @@ def fit_formula(model: Term, data: FitData, geometry: TunnelGeometry, *,
     return out
 
 
-def formula_text(fit: FormulaFit) -> str:
-    """The verdict's sentence on the formula (empty when it is not offered)."""
+def formula_text(fit: FormulaFit, floor: float = 0.0) -> str:
+    """The verdict's sentence on the formula (empty when it is not offered); ``floor`` [N]:
+    the smallest held-out model error the noise resolves (``wording.error_text``)."""
     if not fit.offered:
         return ''
     return (f'A short formula fits it (sparse regression over spatial modes x command features): '
             f'residual = {fit.term.formula()}, with R = {fit.term.radius:.2f} m, T = mean U^2 (the total '
             f'thrust), B = the CCW minus the CW fans\' mean U^2, bumps {100 * fit.term.bump_width:.0f} cm '
-            f'wide; it lowers the held-out model error from {fit.heldout_before:.3f} N to '
-            f'{fit.heldout_after:.3f} N. That is an effect of simple form the library does not name; '
+            f'wide; it lowers the held-out model error from {error_text(fit.heldout_before, floor)} to '
+            f'{error_text(fit.heldout_after, floor).removeprefix("at ")}. That is an effect of simple form the library does not name; '
             f'`wind-shaper model add --effect formula` adds it.')

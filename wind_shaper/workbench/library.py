@@ -23,9 +23,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ..model import (Background, CentralRing, DeadBand, FanCurve, FanElongation, FanGain, FanShape,
-                     FanShift, FanWidth, FanWrapper, JetInteraction, JetInteractionPower, Sum, Swirl,
-                     SwirlQuadratic, Term, WallLayer, Wrapper, find_term, has_fan_parts, walk)
+from ..model import (SWIRL_LAWS, Background, CentralRing, DeadBand, FanCurve, FanElongation, FanGain,
+                     FanShape, FanShift, FanWidth, FanWrapper, JetInteraction, JetInteractionPower, Sum,
+                     Swirl, SwirlFollows, SwirlQuadratic, Term, WallLayer, Wrapper, find_term,
+                     has_fan_parts, walk)
 from ..core.geometry import TunnelGeometry
 from .errors import CandidateError
 
@@ -66,6 +67,10 @@ class Candidate:
     refine_always: bool = False
     # its effect shows with every fan off: judged on the held-out fans-off sweeps as well
     fans_off: bool = False
+    # another form of its family, not screened by the selection: tried only when the family's
+    # own candidates explain much of the residual but do not hold across sweeps
+    # (``family_forms``)
+    other_form: bool = False
 
     def params(self, node: Term) -> dict:
         """The fitted term's own parameters {name: float or list}."""
@@ -221,7 +226,7 @@ def _group_refinements(model, geometry):
 
 def _swirl_family(model, geometry):
     fans = geometry.fans
-    if (any(getattr(t, 'kind', '') in ('swirl', 'swirl_quadratic') for t in walk(model))
+    if (any(getattr(t, 'kind', '') in ('swirl', 'swirl_quadratic', 'swirl_follows') for t in walk(model))
             or len(set(fans.spin_sign)) < 2):
         return []
 
@@ -244,7 +249,25 @@ def _swirl_family(model, geometry):
                       'the imbalance', story + ', by an angle not proportional to the imbalance',
                       lambda m, **p: SwirlQuadratic(fans, m, **p), 'outer', 'swirl_quadratic',
                       {'gain': 0.0, 'curvature': 0.0}, describe,
-                      ({'gain': 0.3, 'curvature': 0.0}, {'gain': -0.3, 'curvature': 0.0}))]
+                      ({'gain': 0.3, 'curvature': 0.0}, {'gain': -0.3, 'curvature': 0.0}))
+            ] + [_swirl_form(fans, law) for law in SWIRL_LAWS]
+
+
+def _swirl_form(fans, law: str) -> Candidate:
+    """The swirl family's other form ``law`` (``model.SwirlFollows``), tried by
+    ``family_forms`` only."""
+    def describe(node, std):
+        g, s = float(node.gain), float(std.get('gain', [np.nan])[0])
+        sense = 'counter-clockwise' if g > 0 else 'clockwise'
+        ref = f' (thrust_ref {node.thrust_ref:g} N)' if law != 'sign' else ''
+        return (f'the field turns {sense} about the tunnel axis by an angle linear {SWIRL_LAWS[law]}'
+                f'{ref}, not in the CW/CCW imbalance ratio the swirl candidate has: {_pm(g, s)} rad '
+                f'per unit of it (propeller swirl the straightener leaves)')
+    return Candidate(f'swirl_{law}', 'swirl', f'swirl rotation of the field, its angle linear '
+                     f'{SWIRL_LAWS[law]}', 'residual propeller swirl turns the field about the axis, '
+                     f'by an angle linear {SWIRL_LAWS[law]}',
+                     lambda m, **p: SwirlFollows(fans, m, follows=law, **p), 'outer', 'swirl_follows',
+                     {'gain': 0.0}, describe, ({'gain': 0.3}, {'gain': -0.3}), other_form=True)
 
 
 def _interaction_family(model, geometry):

@@ -99,7 +99,7 @@ def select(case: Case) -> Case:
         if current_rmse < s.material * case.noise_sd:
             break
         cands = [c for c in case.library.candidates(current.model, case.geometry)
-                 if c.name not in accepted]
+                 if c.name not in accepted and not c.other_form]
         if not cands:
             break
         frozen = Frozen(current.model)

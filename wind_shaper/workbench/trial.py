@@ -77,6 +77,11 @@ class Trial:
     check: SweepCheck | None = None
     gain_off: float | None = None  # held-out gain on the fans-off sweeps, when judged there
     checks: dict = field(default_factory=dict)
+    # refused, but its family shows in the residual in a form the library lacks (``family_forms``)
+    family_note: str = ''
+    # the error bars as the selection had them, before the whole-model jackknife
+    # (``uncertainty.reported_std``) widened them for the report
+    selection_std: dict | None = None
 
     def to_json(self) -> dict:
         def clean(v):
@@ -92,4 +97,5 @@ class Trial:
                 'heldout_gain': round(self.gain, 4), 'passed': self.passed,
                 'reasons': list(self.reasons), 'finding': self.finding,
                 'across_sweeps': self.check.to_json() if self.check is not None else None,
-                'checks': [r.to_json() for r in self.checks.values()]}
+                'checks': [r.to_json() for r in self.checks.values()],
+                'family_note': self.family_note}

@@ -1,7 +1,8 @@
 """The diagnosis's last stage: the verdict, and the words and the JSON of a diagnosed ``Case``.
 
 ``word`` sets the verdict: 'found' (findings passed every check), 'explained' (the held-out model
-error was not material against the noise to begin with), 'time fault' (a time check found the
+error was not material against the noise to begin with, or the held-out residual is no more than
+the noise by the test of ``noise_floor``), 'time fault' (a time check found the
 sweeps depend on when they were recorded, and no effect is named until that is repaired) or
 'unexplained'. ``summary_text``
 writes it in plain words with the warnings about the data; ``checks_text`` lists every check's
@@ -12,6 +13,7 @@ from __future__ import annotations
 from .checks import CHECKS
 from .formula import formula_text
 from .discrepancy import outside_text
+from .wording import error_text
 from .time_checks import TIME_CHECKS, time_text
 
 __all__ = ['word', 'summary_text', 'warnings', 'spread_warning', 'time_warning', 'checks_text',
@@ -24,7 +26,8 @@ def word(case):
         case.verdict = 'time fault'
     elif case.steps:
         case.verdict = 'found'
-    elif case.baseline_rmse < case.settings.material * case.noise_sd:
+    elif (case.baseline_rmse < case.settings.material * case.noise_sd
+          or (case.noise_floor is not None and case.noise_floor.within)):
         case.verdict = 'explained'
     else:
         case.verdict = 'unexplained'
@@ -66,20 +69,27 @@ def summary_text(case) -> str:
     return _verdict_text(case) + ''.join(f'\n\n{w}' for w in warnings(case))
 
 
+def _floor(test) -> float:
+    return test.floor if test is not None else 0.0
+
+
 def _verdict_text(case) -> str:
+    base = error_text(case.baseline_rmse, _floor(case.noise_floor))
     if case.verdict == 'time fault':
         return (f'No effect is named on these sweeps yet: the held-out model error is '
-                f'{case.baseline_rmse:.3f} N (noise {case.noise_sd:.3f} N), but part of the residual '
+                f'{base} (noise {case.noise_sd:.3f} N), but part of the residual '
                 f'depends on when each force was recorded, and every candidate effect would be '
                 f'fitted to that. ' + time_text(case) + ' Then diagnose again.')
     if case.verdict == 'explained':
-        return (f'Nothing to report: the model already explains these sweeps (held-out model error '
-                f'{case.baseline_rmse:.3f} N against measurement noise {case.noise_sd:.3f} N).')
+        test = f'; {case.noise_floor.text()}' if case.noise_floor is not None else ''
+        return (f'Nothing to report: the model explains these sweeps to the noise level (held-out '
+                f'model error {base} against measurement noise {case.noise_sd:.3f} N per '
+                f'sample{test}).')
     undecided = case.undecided.text() if case.undecided is not None else None
     if case.verdict == 'unexplained':
         if case.low_spread:
             return (f'No effect can be identified on these sweeps: the held-out model error is '
-                    f'{case.baseline_rmse:.3f} N (noise {case.noise_sd:.3f} N), but the sweeps\' '
+                    f'{base} (noise {case.noise_sd:.3f} N), but the sweeps\' '
                     f'commands barely vary. See the residual\'s structure below.')
         if case.demoted:
             more = ' ' + _demoted_text(case)
@@ -88,14 +98,17 @@ def _verdict_text(case) -> str:
             lowers = (f'lowers it by only {100 * best.gain:.0f} %' if best is not None and best.gain >= 0.005
                       else 'does not lower it')
             more = f' The best candidate, {best.candidate.title}, {lowers}.' if best else ''
+            if best is not None and best.family_note:
+                more += f' Still, {best.family_note}.'
         return (f'No candidate explains the residual: the held-out model error stays at '
-                f'{case.baseline_rmse:.3f} N (noise {case.noise_sd:.3f} N).{more}'
+                f'{base} (noise {case.noise_sd:.3f} N).{more}'
                 + (' ' + undecided if undecided is not None else '')
                 + _outside_text(case) + ' See the residual\'s structure below.')
     lines = [f'{i + 1}. {t.finding}' for i, t in enumerate(case.steps)]
     tail = f'\n{_demoted_text(case)}' if case.demoted else ''
+    final = error_text(case.final_rmse, _floor(case.final_floor or case.noise_floor))
     return (f'Found {len(case.steps)} effect(s); held-out model error '
-            f'{case.baseline_rmse:.3f} N -> {case.final_rmse:.3f} N '
+            f'{base} -> {final} '
             f'({100 * (1 - case.final_rmse / case.baseline_rmse):.0f} % lower):\n' + '\n'.join(lines)
             + tail + ('\n' + undecided if undecided is not None else '')
             + ('\n\nThe rest is still material.' + _outside_text(case)
@@ -105,14 +118,16 @@ def _verdict_text(case) -> str:
 def _outside_text(case) -> str:
     if case.discrepancy is None:
         return ''
-    formula = formula_text(case.formula) if case.formula is not None else ''
+    formula = (formula_text(case.formula, case.discrepancy.error_floor)
+               if case.formula is not None else '')
     return ' ' + (formula + ' ' if formula else '') + outside_text(case.discrepancy)
 
 
 def _demoted_text(case) -> str:
     """'Partly explained by X, but not reported: ...' for effects that failed a check."""
     parts = [f'{t.candidate.title} (it lowers the held-out error {100 * t.gain:.0f} %), but '
-             f'{"; ".join(t.reasons)}' for t in case.demoted]
+             f'{"; ".join(t.reasons)}' + (f'; {t.family_note}' if t.family_note else '')
+             for t in case.demoted]
     patch = any(t.check is not None and t.check.spread for t in case.demoted)
     return ('Partly explained by ' + '; and by '.join(parts)
             + ('. So that is not reported as a finding: the physics is likely something the '
@@ -146,6 +161,8 @@ def to_json(case) -> dict:
                      'bic': case.baseline.bic},
         'final': {'model': repr(case.final.model), 'train_rmse_N': case.final.rmse,
                   'heldout_model_rmse_N': case.final_rmse, 'heldout_raw_rmse_N': case.final_raw},
+        'noise_floor': case.noise_floor.to_json() if case.noise_floor is not None else None,
+        'final_noise_floor': case.final_floor.to_json() if case.final_floor is not None else None,
         'findings': [t.to_json() for t in case.steps],
         'not_reported': [t.to_json() for t in case.demoted],
         'discrepancy': case.discrepancy.to_json() if case.discrepancy is not None else None,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['drop_text', 'fixed_text', 'pct_text', 'values_text']
+__all__ = ['drop_text', 'error_text', 'fixed_text', 'pct_text', 'values_text']
 
 
 def _change_text(gain: float) -> str:
@@ -42,6 +42,18 @@ def values_text(value) -> str:
     """A parameter's value(s), 3 significant digits: '0.955' or '(0.047, -0.003)'."""
     v = np.atleast_1d(np.asarray(value, float))
     return f'{v[0]:.3g}' if len(v) == 1 else '(' + ', '.join(f'{x:.3g}' for x in v) + ')'
+
+
+def error_text(model_error: float, floor: float = 0.0) -> str:
+    """A held-out model error [N] in words: '0.062 N', or 'at the noise level (below 0.039 N)'
+    when it is no larger than ``floor`` [N], the smallest error the noise lets the sweeps
+    resolve (``noise_floor.NoiseFloor.floor``). The model error is the residual with the noise
+    taken out, so it reads 0 whenever the residual is no larger than the noise: a fit cannot
+    do better than the noise, and 0.000 N would claim it did."""
+    floor = float(floor) if np.isfinite(floor) else 0.0
+    if model_error <= max(floor, 0.0005):
+        return f'at the noise level (below {floor:.3f} N)' if floor >= 0.0005 else 'at the noise level'
+    return f'{model_error:.3f} N'
 
 
 def fixed_text(x: float, digits: int = 3) -> str:

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...model import param_slices, term_label
-from ..trial import by_parameter, node_of
+from ..trial import by_parameter, candidate_std, node_of
+from ..uncertainty import reported_std
 from .base import CHECKS, Check, CheckResult, Round
 
 __all__ = ['check_findings']
@@ -104,12 +105,22 @@ def check_findings(case):
     for t in kept:  # the parameters as the final model has them
         node = node_of(final.model, t.candidate.label)
         t.params = t.candidate.params(node)
+        t.selection_std = dict(t.std)
+        t.std = _widest(t.std, reported_std(case, t.candidate.label, final,
+                                            candidate_std(final, t.candidate.label)))
         t.finding = (t.candidate.describe(node, t.std) + _fans_off_text(t, s.min_gain)
                      + _beside_text(t, final.model))
     case.steps, case.final = kept, final
     case.final_rmse = case.evaluate(final.model)[0]
     case.final_raw = case.evaluate(final.model)[1]
     return case
+
+
+def _widest(a: dict, b: dict) -> dict:
+    """Per parameter, the larger of two error bars (the selection's, and the final model's
+    with the whole-model jackknife, ``uncertainty.reported_std``)."""
+    return {name: np.fmax(np.asarray(a.get(name, [np.nan] * len(np.atleast_1d(v))), float),
+                          np.asarray(v, float)).tolist() for name, v in b.items()}
 
 
 def _fans_off_text(t, min_gain: float) -> str:
