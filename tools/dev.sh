@@ -239,12 +239,12 @@ cmd_test() {
         # lane 1: with them in lane 2 that lane ran alone on one core for its last 190 s.
         local moved=test/e2e/test_workbench.py
         log "lane 1: test/graph, then $moved (output: $graph_log, shown when it ends); lane 2: the rest"
-        WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q test/graph "$moved" >"$graph_log" 2>&1 &
+        WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q --durations=15 test/graph "$moved" >"$graph_log" 2>&1 &
         local graph_pid=$!
         trap 'kill "$graph_pid" 2>/dev/null' EXIT
         # one BLAS thread: the graph's processes need the other core more than numpy does
         WIND_SHAPER_TEST_LANE=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
-            "$PY" -m pytest -q --ignore=test/graph --ignore="$moved" test || rc=$?
+            "$PY" -m pytest -q --durations=25 --ignore=test/graph --ignore="$moved" test || rc=$?
         wait "$graph_pid" || graph_rc=$?
         trap - EXIT
         log "lane 1 (test/graph, $moved):"

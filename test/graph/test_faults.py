@@ -196,7 +196,8 @@ def test_a_stream_node_killed_mid_sweep_costs_no_recorded_sample(rig, fault_row,
     lost = check_nothing_lost(folder, rows)
     fault_row(f'{node} SIGKILL mid-sweep', 'restarted; the stream resumed and the iteration '
               'completed (re-swept if the gap left holes)', code == 0, lost)
-    assert code == 0, out + rig.up.output()[-4000:]
+    node_lines = '\n'.join(line for line in rig.up.lines if node in line)[-6000:]
+    assert code == 0, out + rig.up.output()[-4000:] + f'\n-- lines naming {node}:\n' + node_lines
     assert rig.state().last_completed > before.last_completed
     assert lost == 0
 

@@ -84,6 +84,8 @@ class MocapRelayNode(Node):
     def _on_mocap_pose(self, msg: PoseStamped) -> None:
         now = time.monotonic()
         self._received += 1
+        if self._received == 1:   # tells a lab (and a restart) that the mocap stream is flowing
+            self.get_logger().info(f'first pose received on {self.params.input_topic}')
         self._input_frame = msg.header.frame_id
         pos, q = msg.pose.position, msg.pose.orientation
         result = self._relay.process(stamp_to_seconds(msg.header.stamp), (pos.x, pos.y, pos.z),
