@@ -11,7 +11,8 @@ git ignores). wind_shaper's docstrings are plain text, not reStructuredText (for
 import os
 import sys
 
-ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
+# the repository (a test builds a copy of docs/ elsewhere and names the repository here)
+ROOT = os.environ.get('WIND_SHAPER_DOCS_ROOT') or os.path.abspath(os.path.join(os.path.dirname(__file__), '..'))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
