@@ -116,3 +116,10 @@ def test_the_docs_build_with_warnings_as_errors(tmp_path):
     assert done.returncode == 0, f'sphinx failed (exit {done.returncode}):\n{done.stderr[-6000:]}'
     assert (tmp_path / 'html' / 'index.html').is_file()
     assert (tmp_path / 'html' / 'api' / 'generated' / 'wind_shaper.model.html').is_file()
+
+
+def test_package_xml_parses():
+    """rosdoc2 and colcon read package.xml: it must be well-formed (no "--" inside a comment)."""
+    catkin_pkg = pytest.importorskip('catkin_pkg.package')
+    package = catkin_pkg.parse_package(str(ROOT / 'package.xml'))
+    assert package.name == 'wind_shaper' and 'python3-sphinx' in {d.name for d in package.doc_depends}
