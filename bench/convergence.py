@@ -348,7 +348,7 @@ def main(argv=None):
     ap.add_argument('--source', choices=('plate', 'static'), default='plate',
                     help='measurement source: the moving plate (default) or the static sensor grid')
     ap.add_argument('--summary-from', default=None, metavar='JSON',
-                    help='print the summary table of an earlier results file (the one in the README) and exit')
+                    help='print the summary table of an earlier results file (the one in docs/benchmarks.md) and exit')
     ap.add_argument('--zeta-cache', default=None,
                     help='JSON file to read/write zeta* per case (skips the optimisation when present)')
     args = ap.parse_args(argv)

@@ -54,11 +54,11 @@ FRESH = ['jet_deflection', 'esc_crosstalk', 'wall_return_flow', 'vane_ripple', '
 FRESH_MIXES = [('jet_deflection', 'wall_boundary_layer'), ('esc_crosstalk', 'weak_fan'),
                ('wall_return_flow', 'swirl'), ('vane_ripple', 'tilted_fan'),
                ('jet_spreading', 'dead_band')]
-# The second batch of held-out physics, written a session later, after every check was set.
+# The second batch of held-out physics, written after the first held-out batch had run and every check was set.
 SECOND = ['hub_shadow', 'neighbour_starvation', 'coanda_attachment', 'wall_leak']
 SECOND_MIXES = [('hub_shadow', 'weak_fan'), ('neighbour_starvation', 'swirl'),
                 ('coanda_attachment', 'wall_boundary_layer'), ('wall_leak', 'tilted_fan')]
-# The third batch, written in session 15 after every check was set (two of them act on the
+# The third batch, written after every check (broader forms included) was set (two of them act on the
 # plate's reading and on the recording, not on the flow); run once before any setting looked at them.
 THIRD = ['drag_law', 'mocap_latency', 'ceiling_downwash', 'wall_reflection']
 THIRD_MIXES = [('drag_law', 'weak_fan'), ('mocap_latency', 'wall_boundary_layer'),

@@ -9,8 +9,9 @@
 #   bash tools/dev.sh clean              remove .venv and build output
 #
 # setup installs tools/requirements.txt into .venv, builds the interface package msg_defs/
-# (wind_shaper_msgs) with cmake into .venv itself, and installs wind_shaper editable into .venv.
-# Each of the three steps is redone only when its inputs changed (stamps in .venv/.stamps/);
+# (wind_shaper_msgs) with cmake into .venv itself, installs wind_shaper editable into .venv, and
+# installs the documentation build (tools/requirements-docs.txt: Sphinx, MyST) into .venv.
+# Each of the four steps is redone only when its inputs changed (stamps in .venv/.stamps/);
 # step logs are in .venv/logs/. Environment: WIND_SHAPER_PYTHON (default python3, must be 3.11).
 set -Eeuo pipefail
 
@@ -22,6 +23,7 @@ LOGS=$VENV/logs
 BUILD=$ROOT/build
 MSG_BUILD=$BUILD/msg_defs
 REQUIREMENTS=$ROOT/tools/requirements.txt
+DOCS_REQUIREMENTS=$ROOT/tools/requirements-docs.txt
 PIP_VERSION=26.3
 BASE_PYTHON=${WIND_SHAPER_PYTHON:-python3}
 CHANGED=0  # set by stamp_set: some setup step ran
@@ -182,6 +184,19 @@ step_package() {
     stamp_set package "$key"
 }
 
+# The documentation build, a step of its own: its file is in no other step's stamp, so a change
+# to it reinstalls these few wheels and neither rebuilds msg_defs nor reinstalls the package.
+step_docs() {
+    local key
+    key="pip=$PIP_VERSION req=$(hash_files tools/requirements.txt) docs=$(hash_files tools/requirements-docs.txt)"
+    if stamp_ok docs "$key"; then
+        return
+    fi
+    log "installing tools/requirements-docs.txt into .venv (Sphinx, MyST: the docs build)"
+    run_logged pip-docs "$PY" -m pip install --no-compile -r "$DOCS_REQUIREMENTS"
+    stamp_set docs "$key"
+}
+
 cmd_setup() {
     local start=$SECONDS
     lock_repo
@@ -189,6 +204,7 @@ cmd_setup() {
     step_requirements
     step_msgs
     step_package
+    step_docs
     if ((CHANGED)); then
         run_logged smoke-check "$PY" -c 'import rclpy, wind_shaper_msgs.msg, wind_shaper'
         log "setup done ($((SECONDS - start)) s)"

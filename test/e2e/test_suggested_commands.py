@@ -1,6 +1,10 @@
 """Every `wind-shaper ...` command that the code's messages or the docs tell a user to run exists
-(its --help works), and `wind-shaper targets template` writes a target a run accepts."""
+(its --help works), so does every bench/ and tools/ script the docs show (its --help works), and
+`wind-shaper targets template` writes a target a run accepts."""
+import importlib.util
+import os
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +40,15 @@ def command_words(words: str) -> list[str]:
     return chosen
 
 
+#: a script the docs tell a user to run: bench/NAME.py or tools/NAME.py
+SCRIPT = re.compile(r'\b((?:bench|tools)/[a-z_]+\.py)\b')
+DOCS = [ROOT / 'README.md'] + sorted((ROOT / 'docs').rglob('*.md'))
+
+
+def shown_scripts() -> list[str]:
+    return sorted({m.group(1) for path in DOCS for m in SCRIPT.finditer(path.read_text())})
+
+
 def test_the_sources_suggest_commands():
     assert {'up', 'iterate', 'shape', 'model diagnose'} <= set(suggested_commands())  # the scan works
 
@@ -48,6 +61,32 @@ def test_a_suggested_command_exists(words, capsys):
         main(chosen + ['--help'])
     assert done.value.code == 0
     assert 'usage: wind-shaper' in capsys.readouterr().out
+
+
+def test_the_docs_show_scripts():
+    assert {'bench/convergence.py', 'bench/detection.py', 'tools/readme_figure.py'} <= set(shown_scripts())
+
+
+@pytest.mark.parametrize('script', shown_scripts())
+def test_a_script_the_docs_show_has_help(script, capsys):
+    """In-process (its main(['--help'])), so the imports are shared: the environment a script sets
+    on import (BLAS threads) is put back."""
+    path = ROOT / script
+    assert path.is_file(), f'the docs show {script}, which does not exist'
+    keep = dict(os.environ)
+    spec = importlib.util.spec_from_file_location(f'shown_{path.stem}', path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module   # dataclasses look their module up there
+    try:
+        spec.loader.exec_module(module)
+        with pytest.raises(SystemExit) as done:
+            module.main(['--help'])
+    finally:
+        sys.modules.pop(spec.name, None)
+        os.environ.clear()
+        os.environ.update(keep)
+    assert done.value.code == 0
+    assert 'usage:' in capsys.readouterr().out
 
 
 def test_targets_template_writes_a_profile_a_run_accepts(tmp_path, capsys):

@@ -61,7 +61,7 @@ def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch):
 
 
 def test_the_convergence_summary_table_comes_from_the_results_file(tmp_path, capsys):
-    """The README's table is printed from the committed results file, one row per case."""
+    """docs/benchmarks.md's table is printed from the committed results file, one row per case."""
     results = BENCH / 'out' / 'convergence.json'
     load_bench('convergence').main(['--summary-from', str(results)])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith('| ')]
