@@ -80,7 +80,9 @@ class AdaptiveUpdate:
     per step; stop_factor, stop_patience: the ``StoppingRule``; fit_points: how many
     independent key points one map counts as in the per-fan fit (a map's GP estimates are
     strongly correlated; None: every key point counts); relearn: learn again from the newest
-    map when it contradicts the earlier ones (``chain``).
+    map when it contradicts the earlier ones (``chain``); pool_within [PWM fraction]: the maps
+    whose commands all lie within this of the base's are averaged into the base's residual (see
+    ``_pooled_residual``); 0 uses the base's map alone.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -106,6 +108,7 @@ class AdaptiveUpdate:
     stop_patience: int = 1
     fit_points: float | None = 20.0
     relearn: bool = True
+    pool_within: float = 0.05
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -123,6 +126,8 @@ class AdaptiveUpdate:
                 and self.fit_from >= 1):
             raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
                               'fit_from >= 1')
+        if not 0 <= self.pool_within <= 1:
+            raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
 
     @property
     def stopping(self) -> StoppingRule:
@@ -249,6 +254,7 @@ class AdaptiveUpdate:
 
         M_vals = {i: model(maps[i][0])[0] for i in window}
         M_b, J_b = model(U_b)
+        r_b, pooled = _pooled_residual(maps, window, b, near, noise2, M_vals, M_b, self.pool_within)
 
         # -- does the newest map contradict what the earlier ones taught? -----------------------
         if relearn is None and self.relearn:
@@ -364,8 +370,10 @@ class AdaptiveUpdate:
             U_next = np.where(on & (U_next < self.idle_below), self.bounds.u_min, U_next)
         if self.step_fraction < 1 or not np.array_equal(U_next, U_c):
             pred_c, _ = predict(U_next)
-        predicted_error = float(np.mean(pred_c ** 2))
-        improvement = errors[b] - predicted_error
+        # the gain is predicted on the (pooled) residual; the error it is later compared with
+        # is one map's, so the prediction is stated as one map would measure it
+        improvement = float(np.mean(r_b ** 2)) - float(np.mean(pred_c ** 2))
+        predicted_error = float(errors[b]) - improvement
         stop, reason = stop_rule(inp.k, improvement, inp.std, history)
         if restarted:   # a new start: what the steps before it found does not count
             stop, reason = False, ''
@@ -374,7 +382,7 @@ class AdaptiveUpdate:
                                   f'the predicted gains are not realised, the rest is model error')
         info = {'method': self.method, 'mode': mode, 'base_k': int(b), 'base_error': float(errors[b]),
                 'predicted_error': predicted_error, 'predicted_improvement': float(improvement),
-                'estimate_noise': float(err_noise), 'radius': float(radius),
+                'estimate_noise': float(err_noise), 'radius': float(radius), 'pooled_maps': pooled,
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
@@ -385,3 +393,25 @@ class AdaptiveUpdate:
         # the first trust region (without a history it is step_fraction / (k + 1), the paper's
         # schedule); the radius itself [PWM fraction] is info['radius']
         return UpdateStep(U_next, self.step_fraction * radius / self.radius, U_next - U_k, info)
+
+
+def _pooled_residual(maps, window, b, near, noise2, M_vals, M_b, within):
+    """The base map's residual F - F_des [N] averaged with the maps near it, and how many maps
+    went in.
+
+    Near the optimum a step moves the fans by less than one sweep's noise can resolve: built
+    on the base's map alone it chases that map's noise, and the run wanders about the optimum
+    instead of settling. The maps of the window whose commands all lie within ``within`` [PWM
+    fraction] of the base's are moved to the base's commands by the corrected model (r_i -
+    (M(U_i) - M(U_b))) and averaged per key point, weighted by near_i / (noise_std^2 + std_i^2),
+    so the noise falls with the number of sweeps there while the model's error over such short
+    moves stays small."""
+    U_b = maps[b][0]
+    members = [i for i in window
+               if i == b or (within > 0 and np.max(np.abs(maps[i][0] - U_b)) <= within)]
+    if len(members) < 2:
+        return maps[b][1], 1
+    weights = [near[i] / noise2[i] for i in members]
+    total = np.sum(weights, axis=0)
+    moved = sum(w * (maps[i][1] - (M_vals[i] - M_b)) for w, i in zip(weights, members))
+    return moved / total, len(members)

@@ -349,3 +349,42 @@ def test_gp_hyperparameters_are_estimated_inside_their_bounds(rng):
     gp = GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std']).fit(P, F)
     worse = GaussianProcessField(0.1, 0.01).fit(P, F)
     assert gp.log_marginal_likelihood() > worse.log_marginal_likelihood()
+
+
+# -- pooling the maps near the base ---------------------------------------------------------------
+def test_two_sweeps_at_the_same_commands_are_averaged_before_the_step(rig, prior):
+    """Noise +e in one sweep and -e in the next at the same commands: the pooled step is the
+    step the noise-free field gives; with pooling off it follows the last sweep's noise."""
+    kp = rig.key_points
+    U_star = np.array([0.45, 0.35, 0.4, 0.3, 0.42, 0.33, 0.2])
+    U = U_star + 0.04
+    field, target = prior(U, kp), prior(U_star, kp)
+    # sweep noise is smooth in space (a GP estimate): here it looks like LM2 running 0.05 high
+    e = prior(U + np.array([0, 0, 0.05, 0, 0, 0, 0]), kp) - field
+    history = [PastIteration(U, field + e, None, {})]
+
+    def step(pool_within, noisy=True, past=history):
+        rule = AdaptiveUpdate(correction='none', relearn=False, pool_within=pool_within)
+        return rule.step(_inputs(rig, prior, U, field - e if noisy else field, target, past, k=len(past)))
+
+    clean = step(0.05, noisy=False, past=())
+    pooled, alone = step(0.05), step(0.0)
+    assert pooled.info['pooled_maps'] == 2 and alone.info['pooled_maps'] == 1
+    np.testing.assert_allclose(pooled.U_next, clean.U_next, atol=1e-6)
+    assert np.max(np.abs(alone.U_next - clean.U_next)) > 0.03
+
+
+def test_a_map_farther_than_pool_within_is_not_averaged_in(rig, prior):
+    kp = rig.key_points
+    U = np.full(7, 0.4)
+    far = U + np.array([0.06, 0, 0, 0, 0, 0, 0])
+    target = prior(np.full(7, 0.35), kp)
+    history = [PastIteration(far, prior(far, kp) + 0.3, None, {})]
+    step = AdaptiveUpdate(correction='none', relearn=False, pool_within=0.05).step(
+        _inputs(rig, prior, U, prior(U, kp), target, history, k=1))
+    assert step.info['pooled_maps'] == 1
+
+
+def test_pool_within_outside_its_range_is_refused():
+    with pytest.raises(ConfigError, match='pool_within'):
+        AdaptiveUpdate(pool_within=-0.1)
