@@ -231,7 +231,8 @@ def _plate_average(points, jet_cov, side, order=8):
     weights = np.array([p * q for p in w for q in w]) / 4.0
     inv = np.linalg.inv(jet_cov)
     q = np.asarray(points, float)[:, None, :] + nodes[None]
-    density = np.exp(-0.5 * np.einsum('kni,ij,knj->kn', q, inv, q)) / (2 * np.pi * np.sqrt(np.linalg.det(jet_cov)))
+    norm = 2 * np.pi * np.sqrt(np.linalg.det(jet_cov))
+    density = np.exp(-0.5 * np.einsum('kni,ij,knj->kn', q, inv, q)) / norm
     return density @ weights
 
 
@@ -285,6 +286,7 @@ def test_elongation_reads_the_jets_own_ratio_through_a_square_plate(rig, ratio, 
     def residual(p):
         term = E.FanElongation(fans, jets, fan='LM2', ratio=p[0], angle=p[1], plate_side=side)
         return p[2] * E.fan_part(term, U, hub + d, lm2)[0] - seen
-    fit = least_squares(residual, [1.2, angle + 0.2, seen.max()], bounds=([1.0, -np.pi, 0], [4.0, np.pi, np.inf]))
+    fit = least_squares(residual, [1.2, angle + 0.2, seen.max()],
+                        bounds=([1.0, -np.pi, 0], [4.0, np.pi, np.inf]))
     assert fit.x[0] == pytest.approx(ratio, rel=0.01), fit.x
     assert (fit.x[1] - angle + np.pi / 2) % np.pi - np.pi / 2 == pytest.approx(0.0, abs=0.01)
