@@ -71,6 +71,10 @@ class Candidate:
     # own candidates explain much of the residual but do not hold across sweeps
     # (``family_forms``)
     other_form: bool = False
+    # kinds of the model's terms that describe the same footprint in other respects (where the
+    # jet lands, its width, its profile); their commissioned parameters are let free in one of
+    # the readings of the finding's error bar (``uncertainty.loosened_spread``)
+    loosen: tuple = ()
 
     def params(self, node: Term) -> dict:
         """The fitted term's own parameters {name: float or list}."""
@@ -185,7 +189,8 @@ def _elongation_family(model, geometry):
             f'the jet of fan {name} is stretched along one direction (bent guide vane, tilted mount)',
             lambda m, name=name, **p: FanElongation(fans, m, fan=name, plate_side=side, **p), 'fan',
             f'fan_elongation[{name}]', {'ratio': 1.0}, describe,
-            tuple({'ratio': 1.2, 'angle': a} for a in (np.pi / 4, -np.pi / 4)), (name,)))
+            tuple({'ratio': 1.2, 'angle': a} for a in (np.pi / 4, -np.pi / 4)), (name,),
+            loosen=('fan_shift', 'fan_width', 'fan_shape')))
     return out
 
 

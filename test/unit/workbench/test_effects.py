@@ -9,6 +9,7 @@ from wind_shaper.core.errors import ConfigError
 from wind_shaper.core.geometry import TunnelGeometry
 from wind_shaper.model import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
                                term_from_dict)
+from wind_shaper.model.fan_effects import plate_stretch_share
 
 
 @pytest.fixture(scope='module')
@@ -218,3 +219,74 @@ def test_a_model_file_naming_library_kinds_loads_without_importing_them(rig, tmp
             'assert "wind_shaper.model.fan_effects" in sys.modules; print(type(m).__name__)')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == 'FanGain', out.stderr
+
+
+def _plate_average(points, jet_cov, side, order=8):
+    """Mean over a square plate of side ``side`` [m] centred at each point (K, 2) of a Gaussian
+    jet of covariance ``jet_cov`` (2, 2) [m^2] landing at the origin (unit total force), by
+    Gauss-Legendre quadrature: the truth the elongation tests compare with, computed without the
+    term's own formulas."""
+    x, w = np.polynomial.legendre.leggauss(order)
+    nodes = np.array([(a, b) for a in x for b in x]) * side / 2.0
+    weights = np.array([p * q for p in w for q in w]) / 4.0
+    inv = np.linalg.inv(jet_cov)
+    q = np.asarray(points, float)[:, None, :] + nodes[None]
+    norm = 2 * np.pi * np.sqrt(np.linalg.det(jet_cov))
+    density = np.exp(-0.5 * np.einsum('kni,ij,knj->kn', q, inv, q)) / norm
+    return density @ weights
+
+
+def _stretched_cov(v_jet, ratio, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+    return v_jet * rot @ np.diag([ratio, 1.0 / ratio]) @ rot.T
+
+
+@pytest.mark.parametrize('rho', [0.1, 0.25, 1.0])
+def test_the_plates_share_of_a_stretch_is_that_of_a_square_plate(rho):
+    # the share tabulated from closed forms against a direct quadrature of the plate average:
+    # the change a small stretch of the jet makes, matched by least squares to the change the
+    # same stretch of the averaged footprint makes, along a side and along a diagonal
+    side, eps = 0.2, 1e-3
+    v_jet = rho * side ** 2
+    h = 0.005
+    g = np.arange(-1.0, 1.0 + 1e-9, h) * 6 * np.sqrt(v_jet + side ** 2 / 12)
+    X, Y = np.meshgrid(g, g)
+    pts = np.column_stack([X.ravel(), Y.ravel()])
+    F = _plate_average(pts, _stretched_cov(v_jet, 1.0, 0.0), side).reshape(X.shape)
+    Fy, Fx = np.gradient(F, g, g)
+    shares = []
+    for angle, warp in ((0.0, X * Fx - Y * Fy), (np.pi / 4, X * Fy + Y * Fx)):
+        change = (_plate_average(pts, _stretched_cov(v_jet, 1 + eps, angle), side).reshape(X.shape) - F) / eps
+        shares.append(float(np.sum(change * -0.5 * warp) / np.sum((0.5 * warp) ** 2)))
+    along, diagonal = plate_stretch_share(rho)
+    assert along == pytest.approx(shares[0], rel=0.01)
+    assert diagonal == pytest.approx(shares[1], rel=0.01)
+    # a square passes less of a stretch on than a Gaussian plate of its variance
+    assert along < diagonal < rho / (rho + 1 / 12)
+
+
+@pytest.mark.parametrize('ratio,angle', [(1.6, 0.0), (1.4, 0.6), (2.0, np.pi / 4)])
+def test_elongation_reads_the_jets_own_ratio_through_a_square_plate(rig, ratio, angle):
+    # a Gaussian jet (10 cm per axis) averaged over the 20 cm plate, stretched; the model's
+    # footprint is the Gaussian of the round average's variance. Fitted on the footprint, the
+    # term reads the jet's ratio (a Gaussian plate in its place read 1.6 as about 1.55)
+    from scipy.optimize import least_squares
+    fans, side, v_jet = rig.fans, 0.2, 0.01
+    lm2 = fans.index('LM2')
+    hub = fans.positions[lm2]
+    sigma = np.sqrt(2 * (v_jet + side ** 2 / 12))
+    jets = FanJets(fans, thrust_higher=(0.0, 0.0, 1.0), thrust_lower=(0.0, 0.0, 1.0), sigma=sigma)
+    g = np.linspace(-0.4, 0.4, 41)
+    d = np.array([[x, y] for x in g for y in g])
+    seen = _plate_average(d, _stretched_cov(v_jet, ratio, angle), side)
+    U = np.zeros((len(d), 7))
+    U[:, lm2] = 1.0
+
+    def residual(p):
+        term = E.FanElongation(fans, jets, fan='LM2', ratio=p[0], angle=p[1], plate_side=side)
+        return p[2] * E.fan_part(term, U, hub + d, lm2)[0] - seen
+    fit = least_squares(residual, [1.2, angle + 0.2, seen.max()],
+                        bounds=([1.0, -np.pi, 0], [4.0, np.pi, np.inf]))
+    assert fit.x[0] == pytest.approx(ratio, rel=0.01), fit.x
+    assert (fit.x[1] - angle + np.pi / 2) % np.pi - np.pi / 2 == pytest.approx(0.0, abs=0.01)

@@ -23,3 +23,45 @@ def test_the_reported_error_bar_covers_the_truth(effect, diagnosed):
     # the finding's words carry the wider error bar
     if effect == 'wall_boundary_layer':
         assert f'± {100 * t.std["thickness"][0]:.1f}' in t.finding
+
+
+@pytest.mark.slow
+def test_the_loosened_reading_sees_a_commissioned_footprint_the_elongation_stands_in_for(wb_setup, reference):
+    # LM2's jet 10 % wider than commissioned, seen where the sweeps reach it (from inside the
+    # sweep disc): the elongation candidate reads the round jet as elongated; with the
+    # footprint's commissioned width, landing and profile let free it reads it round again,
+    # and the loosened spread is that whole move. On data the model makes exactly, no move.
+    import dataclasses
+    from types import SimpleNamespace
+
+    from wind_shaper.model import term_from_dict
+    from wind_shaper.workbench.commands import simulated_sweeps
+    from wind_shaper.workbench.fitting import fit_model
+    from wind_shaper.workbench.library import apply_candidate, default_library
+    from wind_shaper.workbench.trial import fit_mask
+    from wind_shaper.workbench.uncertainty import loosened_spread
+
+    data = simulated_sweeps(wb_setup.make_sim(seed=5), 12, seed=5)
+    cells = data.split(1 / 3)[0].fit_data(0.04)
+    spec = reference.to_dict()
+    node = spec
+    while node['kind'] != 'fan_width':
+        node = node['term']
+    node['scale'][list(node['fan']).index('LM2')] *= 1.1
+    wider = term_from_dict(spec, reference.fans)
+    candidate = default_library().get(reference, wb_setup.geometry, 'fan_elongation[LM2]')
+    assert set(candidate.loosen) == {'fan_shift', 'fan_width', 'fan_shape'}
+    readings = {}
+    for name, tunnel in (('as commissioned', reference), ('wider', wider)):
+        train = dataclasses.replace(cells, y=tunnel(cells.U, cells.Z))
+        model = apply_candidate(reference, candidate, ratio=1.2, angle=0.78)
+        fit = fit_model(model, train, free=fit_mask(model), max_nfev=40)
+        spread = loosened_spread(SimpleNamespace(train=train), fit, candidate.label, candidate.loosen)
+        readings[name] = (float(fit.model.ratio[0]), float(spread[0]))
+        # no term of an unrelated kind to let free: no spread
+        assert not np.any(loosened_spread(SimpleNamespace(train=train), fit, candidate.label, ('swirl',)))
+    ratio, spread = readings['as commissioned']
+    assert ratio == pytest.approx(1.0, abs=1e-3) and spread < 1e-3
+    ratio, spread = readings['wider']
+    assert ratio > 1.01                                    # a round jet read as elongated
+    assert spread == pytest.approx(ratio - 1.0, rel=0.2)  # and the loosened reading sees it

@@ -107,7 +107,8 @@ def check_findings(case):
         t.params = t.candidate.params(node)
         t.selection_std = dict(t.std)
         t.std = _widest(t.std, reported_std(case, t.candidate.label, final,
-                                            candidate_std(final, t.candidate.label)))
+                                            candidate_std(final, t.candidate.label),
+                                            loosen=t.candidate.loosen))
         t.finding = (t.candidate.describe(node, t.std) + _fans_off_text(t, s.min_gain)
                      + _beside_text(t, final.model))
     case.steps, case.final = kept, final
