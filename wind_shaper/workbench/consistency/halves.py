@@ -116,9 +116,8 @@ def across_load(model: Term, label: str, null: dict, train: FitData, previous: T
     ``check_across_space``, but at ``max_z`` 4, not 3: it is put on every finding, and beside
     physics the library lacks the halves' cells carry a residual correlated in space that
     their standard errors do not know (a real tilted LM2 beside a blocked patch: 3.1 and 3.4
-    standard errors; a return flow read as a wall layer: 7.6-8.2). This is the check the
-    issue asks for as "no structure of the residual against each fan's command", put on the
-    effect's own parameters."""
+    standard errors; a return flow read as a wall layer: 7.6-8.2). It asks that the residual
+    have no structure against each fan's command, put on the effect's own parameters."""
     sl, null_values, size = _term_elements(model, label, null)
     names = list(model.theta_names[sl])
     diff = model(train.U, train.Z) - previous(train.U, train.Z)
