@@ -328,11 +328,12 @@ class FieldEstimatorNode(Node):
 
 
 def main(args=None) -> int:
-    # Single-threaded, not rclpy's experimental events executor: restarted after a SIGKILL
-    # mid-sweep, a field_estimator on the events executor now and then never answered a service
-    # call again (on a busy machine; seen twice in fault tests). The wait set looks at what is
-    # really queued, so a restart cannot leave it behind.
-    return run(FieldEstimatorNode, args, executor='single')
+    # The events executor takes the 1 kHz force stream at a fraction of the single-threaded
+    # one's CPU (on the single-threaded executor a busy machine delayed the held-plate batch's
+    # estimates past their deadline); an estimate (tens of ms) holds it up only after
+    # collection has stopped. Known risk: once, restarted after a SIGKILL mid-sweep on a busy
+    # machine, it never answered a service call again.
+    return run(FieldEstimatorNode, args, executor='events')
 
 
 if __name__ == '__main__':
