@@ -329,10 +329,10 @@ class FieldEstimatorNode(Node):
 
 def main(args=None) -> int:
     # The events executor takes the 1 kHz force stream at a fraction of the single-threaded
-    # one's CPU (on the single-threaded executor a busy machine delayed the held-plate batch's
-    # estimates past their deadline); an estimate (tens of ms) holds it up only after
-    # collection has stopped. Known risk: once, restarted after a SIGKILL mid-sweep on a busy
-    # machine, it never answered a service call again.
+    # one's CPU (single-threaded, the held-plate batch's graph test failed in 1 of 3 runs and
+    # once in CI, with no answer from the coordinator, likely the stream's cost); an estimate
+    # (tens of ms) holds it up only after collection has stopped. Known risk: once, restarted
+    # after a SIGKILL mid-sweep on a busy machine, it never answered a service call again.
     return run(FieldEstimatorNode, args, executor='events')
 
 
