@@ -90,6 +90,35 @@ def test_plain_yaml_still_reads():
     assert load_yaml('[' * 40 + ']' * 40) is not None        # exactly the depth allowed
 
 
+def test_a_large_text_is_built_without_a_collector_pass_and_the_collector_state_comes_back():
+    """A collector pass over a large document's objects holds the GIL for a second or more on a
+    busy machine: a node reading it in a worker thread stopped answering cancel meanwhile."""
+    import gc
+    text = 'notes:\n' + '- [0.123456789, 0.987654321, 0.5]\n' * 20000
+    passes = []
+
+    def count(phase, info):
+        # the event check's short-lived objects may take a youngest-generation pass (cheap);
+        # passes over older generations are the ones that walk the document (the old code: 39)
+        if phase == 'start' and info['generation'] > 0:
+            passes.append(info['generation'])
+    was_enabled = gc.isenabled()
+    gc.callbacks.append(count)
+    try:
+        for enabled in (True, False):
+            (gc.enable if enabled else gc.disable)()
+            passes.clear()
+            assert len(load_yaml(text)['notes']) == 20000
+            assert passes == [] and gc.isenabled() == enabled
+        gc.enable()
+        with pytest.raises(YamlRefused):      # a refused read restores it as well
+            load_yaml('a: [1, 2\n')
+        assert gc.isenabled()
+    finally:
+        gc.callbacks.remove(count)
+        (gc.enable if was_enabled else gc.disable)()
+
+
 def test_files_are_read_only_within_their_bound(tmp_path):
     big = tmp_path / 'big.yaml'
     big.write_bytes(b'a: ' + b'1' * (DEFAULT_LIMITS.yaml_bytes + 10))
