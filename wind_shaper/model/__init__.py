@@ -1,6 +1,6 @@
 """The tunnel's force model Phi(U, z) [N]: ``terms`` (the composable-term machinery and the
 ``TERMS`` registry), ``prior`` (the paper's FanJets + CentralRing), ``fanwise`` (the fan-resolved
-protocol, tree helpers, Wrapper), ``fan_effects``, ``flow_effects`` and ``swirl_forms`` (the candidate effects),
+protocol, tree helpers, Wrapper), ``fan_effects``, ``footprint_effects``, ``flow_effects`` and ``swirl_forms`` (the candidate effects),
 ``modelfile`` (save/load), ``plugins`` (user terms) and ``calibration`` (batch and fit).
 
 Import from here (``from wind_shaper.model import FanGain``): every module is imported below, so
@@ -12,8 +12,8 @@ from .prior import POLY_BOUNDS, SIGMA_BOUNDS, CentralRing, FanJets, paper_prior
 from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batched, fan_thrust,
                       fan_thrust_batched, fan_width, find_term, has_fan_parts, is_fan_sum,
                       param_slices, refix, set_fixed, term_label, walk, wrap)
-from .fan_effects import (ALL_FANS, FanCurve, FanElongation, FanGain, FanPush, FanShape,
-                          FanShift, FanWidth, FanWrapper)
+from .fan_effects import ALL_FANS, FanCurve, FanGain, FanPush, FanShift, FanWrapper
+from .footprint_effects import FanElongation, FanShape, FanWidth
 from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
                            SwirlQuadratic, WallLayer)
 from .swirl_forms import SWIRL_LAWS, SwirlFollows
@@ -32,7 +32,7 @@ __all__ = [
     'Wrapper', 'wrap', 'fan_part', 'fan_thrust', 'fan_width', 'fan_landing', 'is_fan_sum',
     'has_fan_parts', 'fan_part_batched', 'fan_thrust_batched', 'walk', 'param_slices', 'find_term',
     'term_label', 'refix', 'set_fixed', 'PLATE_SIDE',
-    # fan_effects: per-fan candidate effects
+    # fan_effects, footprint_effects: per-fan candidate effects
     'FanWrapper', 'ALL_FANS', 'FanGain', 'FanShift', 'FanPush', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',

@@ -1,5 +1,5 @@
 """The fan-resolved protocol, the term-tree helpers and ``Wrapper``, the base of the effect terms
-that modify another term (``fan_effects``, ``flow_effects``).
+that modify another term (``fan_effects``, ``footprint_effects``, ``flow_effects``).
 
 **Wrappers** modify a term they hold (``term``): ``FanGain(fans, model, fan='HM2')`` scales one
 fan's jet, ``Swirl(fans, model)`` turns the whole field about the axis; ``wrap(FanGain, model,

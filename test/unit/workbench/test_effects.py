@@ -9,7 +9,7 @@ from wind_shaper.core.errors import ConfigError
 from wind_shaper.core.geometry import TunnelGeometry
 from wind_shaper.model import (TERMS, CentralRing, FanJets, finite_difference_jacobian,
                                term_from_dict)
-from wind_shaper.model.fan_effects import plate_stretch_share
+from wind_shaper.model.footprint_effects import plate_stretch_share
 
 
 @pytest.fixture(scope='module')
