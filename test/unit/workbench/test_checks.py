@@ -23,6 +23,27 @@ def test_every_registered_check_has_a_name_a_question_and_a_refusal():
         assert name in repr(check)
 
 
+def test_the_stages_run_in_one_line_and_none_calls_back_into_the_diagnosis():
+    """Diagnosis.fit runs the stages in order, each taking and returning the case; no module
+    below it (a stage, a check, a helper) imports diagnose.py, so nothing comes back to it."""
+    import ast
+    from pathlib import Path
+
+    from wind_shaper.workbench import diagnose
+    assert [s.__module__.removeprefix('wind_shaper.workbench.') for s in diagnose.STAGES] == [
+        'time_checks.stage', 'selection', 'checks.run', 'family_forms', 'rest', 'verdict']
+    root = Path(diagnose.__file__).parent
+    callers = {'__init__.py', 'diagnose.py', 'commands.py', 'add.py', 'suggest.py'}  # above it
+    importers = []
+    for path in sorted(root.rglob('*.py')):
+        if path.relative_to(root).as_posix() in callers:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or '').endswith('diagnose'):
+                importers.append(path.relative_to(root).as_posix())
+    assert importers == []
+
+
 def test_a_new_check_is_one_class_registered_by_name():
     @register_check
     class Nothing(Check):
