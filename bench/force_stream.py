@@ -1,9 +1,10 @@
 """Force stream end to end: SimNetFtServer -> force_sensor process -> subscriber process.
 
-For each rate the simulated Net F/T (in this process) streams records whose Fx carries the
-record index k (counts_per_force 1, so Fx = k exactly); the force_sensor node runs in its own
-process; a subscriber in a third process counts /wind_shaper/force for ``--seconds`` from its
-first message. In that window: sent = last k - first k + 1, received = distinct k seen, lost =
+For each rate the simulated Net F/T (in this process) streams records whose Fx and Fz carry the
+record index k (counts_per_force 1, so Fx = Fz = k exactly); the force_sensor node runs in its
+own process; a subscriber in a third process counts the samples of ``--stream`` (``block``:
+/wind_shaper/force/block, the ForceBlocks the field estimator reads; ``wrench``:
+/wind_shaper/force, one WrenchStamped per sample) for ``--seconds`` from its first message. In that window: sent = last k - first k + 1, received = distinct k seen, lost =
 sent - received (every gap, whether at the UDP hop or the ROS hop); the UDP-hop share comes from
 the node's own sequence counters in /diagnostics (since its start). Also printed: the CPU
 (percent of one core) of the subscriber and of the node process, and the server's late skips
@@ -11,8 +12,8 @@ the node's own sequence counters in /diagnostics (since its start). Also printed
 lossless: PASS/FAIL, exit code 1 on FAIL.
 
 Usage: python bench/force_stream.py [--rates 1000 2000 4000 7000] [--seconds 3]
-       [--subscriber-executor events|single] [--node-executor events|multi] [--depth N]
-       [--json out.json]
+       [--stream block|wrench] [--subscriber-executor single|events]
+       [--node-executor single|events] [--depth N] [--json out.json]
 (``--subscriber`` and ``--node`` are the child processes' modes.)
 """
 from __future__ import annotations
@@ -44,7 +45,8 @@ def node_main(executor: str, ros_args: list[str], depth: int | None) -> int:
 
 
 # ------------------------------------------------------------------------------ child: subscriber
-def subscriber_main(executor: str, seconds: float, wait_s: float, depth: int | None) -> int:
+def subscriber_main(executor: str, seconds: float, wait_s: float, depth: int | None,
+                    stream: str) -> int:
     _set_depth(depth)
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -61,21 +63,29 @@ def subscriber_main(executor: str, seconds: float, wait_s: float, depth: int | N
 
     latency: list[float] = []
 
-    def on_force(msg):
+    def on_samples(k_values, stamps):
         if not ks:
             window['t0'] = time.monotonic()
             window['cpu0'] = time.process_time()
             print('START', flush=True)
-        ks.append(msg.wrench.force.x)
+        ks.extend(k_values)
         # the node stamps each sample with its arrival on the node's clock (the same machine's
-        # clock here, also across network namespaces): stamp to receipt is the ROS hop
-        latency.append(time.time() - (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec))
+        # clock here, also across network namespaces): stamp to receipt is the ROS hop (for a
+        # block, its newest sample's)
+        latency.append(time.time() - stamps[-1])
         if time.monotonic() - window['t0'] >= seconds and not done.done():
             window['t1'] = time.monotonic()
             window['cpu1'] = time.process_time()
             done.set_result(True)
 
-    node.create_subscription(WrenchStamped, names.FORCE, on_force, qos.STREAM)
+    if stream == 'block':
+        from wind_shaper_msgs.msg import ForceBlock
+        node.create_subscription(ForceBlock, names.FORCE_BLOCK,
+                                 lambda m: on_samples(m.force_z, m.stamp), qos.STREAM)
+    else:
+        node.create_subscription(WrenchStamped, names.FORCE, lambda m: on_samples(
+            [m.wrench.force.x], [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec]),
+            qos.STREAM)
     node_counts = {}
 
     def on_diagnostics(msg):
@@ -129,11 +139,12 @@ def _stop(process: subprocess.Popen, grace_s: float = 5.0) -> None:
 
 
 def run_rate(rate: float, seconds: float, sub_executor: str, node_executor: str,
-             env: dict, depth: int | None = None) -> dict:
+             env: dict, depth: int | None = None, stream: str = 'block') -> dict:
     from wind_shaper.sim import SimNetFtServer
 
     def source(t):
-        return (round(t * rate), 0.0, 0.0, 0.0, 0.0, 0.0)   # Fx = record index k [counts]
+        k = round(t * rate)
+        return (k, 0.0, k, 0.0, 0.0, 0.0)   # Fx = Fz = record index k [counts]
 
     me = os.path.abspath(__file__)
     wait_s = 20.0
@@ -141,7 +152,8 @@ def run_rate(rate: float, seconds: float, sub_executor: str, node_executor: str,
                         max_batch=1000) as server:
         extra = ['--depth', str(depth)] if depth else []
         sub = subprocess.Popen([sys.executable, me, '--subscriber', '--executor', sub_executor,
-                                '--seconds', str(seconds), '--wait', str(wait_s), *extra], env=env,
+                                '--seconds', str(seconds), '--wait', str(wait_s), '--stream',
+                                stream, *extra], env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                stdin=subprocess.DEVNULL, start_new_session=True)
         node = subprocess.Popen([sys.executable, me, '--node', '--executor', node_executor,
@@ -187,8 +199,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--rates', type=float, nargs='+', default=[1000, 2000, 4000, 7000])
     ap.add_argument('--seconds', type=float, default=3.0, help='counting window per rate [s]')
-    ap.add_argument('--subscriber-executor', choices=['events', 'single'], default='events')
-    ap.add_argument('--node-executor', choices=['events', 'multi'], default='events')
+    ap.add_argument('--stream', choices=['block', 'wrench'], default='block',
+                    help='what the subscriber counts: the ForceBlocks the field estimator reads '
+                    '(default) or the per-sample WrenchStamped')
+    ap.add_argument('--subscriber-executor', choices=['single', 'events'], default='single')
+    ap.add_argument('--node-executor', choices=['single', 'events'], default='single')
     ap.add_argument('--depth', type=int, default=None,
                     help='experiment: history depth of the force QoS (default: ros.qos.STREAM)')
     ap.add_argument('--json', default=None)
@@ -200,7 +215,7 @@ def main(argv=None) -> int:
     if args.node:
         return node_main(args.executor, rest, args.depth)
     if args.subscriber:
-        return subscriber_main(args.executor, args.seconds, args.wait, args.depth)
+        return subscriber_main(args.executor, args.seconds, args.wait, args.depth, args.stream)
 
     env = dict(os.environ)
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -209,7 +224,7 @@ def main(argv=None) -> int:
     from wind_shaper.ros import qos
     depth = args.depth or qos.STREAM.depth
     print(f'force stream: SimNetFtServer -> force_sensor ({args.node_executor} executor) -> '
-          f'subscriber ({args.subscriber_executor} executor), QoS depth {depth}, '
+          f'{args.stream} subscriber ({args.subscriber_executor} executor), QoS depth {depth}, '
           f'{args.seconds:g} s per rate, ROS_DOMAIN_ID {env["ROS_DOMAIN_ID"]}, '
           f'{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}')
     header = (f'{"rate Hz":>8} {"sent":>7} {"received":>8} {"lost":>6} {"loss %":>7} '
@@ -218,7 +233,7 @@ def main(argv=None) -> int:
     rows = []
     for rate in args.rates:
         r = run_rate(rate, args.seconds, args.subscriber_executor, args.node_executor, env,
-                     args.depth)
+                     args.depth, args.stream)
         rows.append(r)
         if 'error' in r:
             print(f'{rate:>8.0f} error: {r["error"]}', flush=True)
@@ -236,7 +251,7 @@ def main(argv=None) -> int:
           f'{"lossless" if ok else "lost samples or did not run"}')
     if args.json:
         with open(args.json, 'w') as f:
-            json.dump(dict(subscriber_executor=args.subscriber_executor,
+            json.dump(dict(stream=args.stream, subscriber_executor=args.subscriber_executor,
                            node_executor=args.node_executor, seconds=args.seconds, depth=depth,
                            rows=rows), f, indent=2)
     return 0 if ok else 1

@@ -147,7 +147,9 @@ def test_a_replayed_sweep_bag_gives_the_field_estimate_the_core_computes_offline
     (record,) = read_sweep_records(bag_path)
     offline = setup.shaping.make_estimator().estimate(record.sweep, setup.geometry.key_points)
 
-    estimator = ros_process(BIN / 'field_estimator', '--ros-args', '-p', f'config_dir:={config}')
+    # a bag holds the per-sample wrenches: the estimator reads them instead of the blocks
+    estimator = ros_process(BIN / 'field_estimator', '--ros-args', '-p', f'config_dir:={config}',
+                            '-p', "force_block_topic:=''")
     node = rclpy.create_node('bag_replay_coordinator', context=ros_context)
     player = None
     try:

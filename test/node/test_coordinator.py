@@ -13,12 +13,13 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from wind_shaper_msgs.msg import ExperimentStatus, FanCommand, IterationStatus, SweepSamples  # noqa: E402
+from wind_shaper_msgs.msg import (ExperimentStatus, FanCommand, ForceBlock, IterationStatus,  # noqa: E402
+                                  SweepSamples)
 from wind_shaper_msgs.srv import Collect, EstimateField, RunIteration, SetModel, Sweep  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
@@ -87,7 +88,7 @@ class FakeRig(Node):
             self.create_service(Trigger, names.BEGIN_SWEEP, self._handle_begin_sweep)
             self.create_service(EstimateField, names.ESTIMATE_FIELD, self._handle_estimate)
         if stream:
-            self.force_pub = self.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+            self.force_pub = self.create_publisher(ForceBlock, names.FORCE_BLOCK, qos.STREAM)
             self.pose_pub = self.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
 
     def _on_fans_command(self, msg):
@@ -133,13 +134,15 @@ class FakeRig(Node):
         force = self.sim.true_field(self.sim.pwm, xy) + rng.normal(0, 0.03, n)
         t0 = time.time()
         sent = [0, 0]
+        block = ForceBlock()
         for i in range(n):
             t = t0 + i * dt
-            w = WrenchStamped()
-            w.header.stamp = seconds_to_stamp(t)
-            w.wrench.force.z = float(force[i])
-            self.force_pub.publish(w)
-            sent[0] += 1
+            block.stamp.append(t)
+            block.force_z.append(float(force[i]))
+            if i % per_pose == per_pose - 1:   # the force in blocks, as force_sensor sends it
+                self.force_pub.publish(block)
+                sent[0] += len(block.stamp)
+                block = ForceBlock()
             if i % per_pose == 1:
                 pose = PoseStamped()
                 pose.header.stamp = seconds_to_stamp(t + dt / 2)

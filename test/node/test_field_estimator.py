@@ -10,7 +10,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from wind_shaper_msgs.msg import FieldEstimate  # noqa: E402
+from wind_shaper_msgs.msg import FieldEstimate, ForceBlock  # noqa: E402
 from wind_shaper_msgs.srv import EstimateField, QueryField  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
@@ -61,11 +61,18 @@ def sweep_streams(sim, n_poses=400, t_start=1000.0, half_disc=False, seed=0):
 class Harness:
     """The node under test and a helper node (publishers, clients) on one spinning executor."""
 
-    def __init__(self, context, journal_dir, overrides=()):
+    def __init__(self, context, journal_dir, overrides=(), per_sample=False):
+        """per_sample: the force as one WrenchStamped per sample (force_block_topic ''), else
+        in ForceBlocks as force_sensor sends it."""
+        self.per_sample = per_sample
+        if per_sample:
+            overrides = [*overrides, Parameter('force_block_topic', value='')]
         self.node = FieldEstimatorNode(context=context, parameter_overrides=[
             Parameter('journal_dir', value=str(journal_dir)), *overrides])
         self.peer = rclpy.create_node('field_estimator_test_peer', context=context)
-        self.force_pub = self.peer.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+        self.force_pub = (self.peer.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+                          if per_sample else
+                          self.peer.create_publisher(ForceBlock, names.FORCE_BLOCK, qos.STREAM))
         self.pose_pub = self.peer.create_publisher(PoseStamped, names.PLATE_POSE, qos.STREAM)
         self.begin = self.peer.create_client(Trigger, names.BEGIN_SWEEP)
         self.estimate = self.peer.create_client(EstimateField, names.ESTIMATE_FIELD)
@@ -110,15 +117,26 @@ class Harness:
         rows = sorted([(t, 0, f, 0.0) for t, f in zip(force_t, force)]
                       + [(t, 1, x, y) for t, (x, y) in zip(pose_t, pose_xy)])
         n_force = n_pose = 0
+        block = ForceBlock()
+
+        def send_block():
+            if len(block.stamp):
+                self.force_pub.publish(block)
+            block.stamp, block.force_z = [], []
         for start in range(0, len(rows), 50):
             for t, kind, a, b in rows[start:start + 50]:
-                if kind == 0:
+                if kind == 0 and not self.per_sample:
+                    block.stamp.append(float(t))
+                    block.force_z.append(float(a))
+                    n_force += 1
+                elif kind == 0:
                     msg = WrenchStamped()
                     msg.header.stamp = seconds_to_stamp(t)
                     msg.wrench.force.z = float(a)
                     self.force_pub.publish(msg)
                     n_force += 1
                 else:
+                    send_block()
                     msg = PoseStamped()
                     msg.header.stamp = seconds_to_stamp(t)
                     msg.header.frame_id = names.TUNNEL_FRAME
@@ -126,6 +144,7 @@ class Harness:
                     msg.pose.orientation.w = 1.0
                     self.pose_pub.publish(msg)
                     n_pose += 1
+            send_block()
             if expect_buffered:
                 assert wait_until(lambda: (len(self.node._force), len(self.node._pose))
                                   == (n_force, n_pose)), 'the node lost stream samples'
@@ -152,6 +171,7 @@ def harness(ros_context, tmp_path):
     h = Harness(ros_context, tmp_path / 'journal')
     yield h
     h.close()
+
 
 
 def stamp_seconds(stamp):
@@ -192,6 +212,41 @@ def test_estimate_is_the_core_estimate_of_the_aligned_pairs(harness, sim, setup)
     # published latched on /wind_shaper/field
     assert wait_until(lambda: len(harness.fields) == 1)
     np.testing.assert_array_equal(harness.fields[0].mean, resp.estimate.mean)
+
+
+def test_the_force_per_sample_gives_the_same_pairs_and_field_as_in_blocks(
+        ros_context, tmp_path, sim):
+    """force_block_topic '' reads one WrenchStamped per sample (a lab's own force driver, a
+    bag replayed): the same samples give the same pairs and field as the blocks do."""
+    streams = sweep_streams(sim, seed=7)
+    answers = []
+    for per_sample in (False, True):
+        h = Harness(ros_context, tmp_path / f'journal-{per_sample}', per_sample=per_sample)
+        try:
+            assert h.begin_sweep().success
+            h.publish(*streams)
+            resp = h.estimate_field(iteration=1)
+            assert resp.success, resp.message
+            answers.append(resp)
+        finally:
+            h.close()
+    blocks, samples = (sweep_from_msg(r.samples) for r in answers)
+    assert len(blocks) == len(samples) == 400
+    # the per-sample stamps pass through integer nanoseconds, the blocks' do not
+    np.testing.assert_allclose(samples.forces, blocks.forces, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(answers[1].estimate.mean, answers[0].estimate.mean, atol=1e-6)
+
+
+def test_a_force_block_with_unequal_columns_is_dropped_and_collection_goes_on(harness, sim):
+    assert harness.begin_sweep().success
+    bad = ForceBlock(stamp=[1000.0, 1000.001], force_z=[1.0])
+    harness.force_pub.publish(bad)
+    good = ForceBlock(stamp=[1000.002, 1000.003], force_z=[1.0, 2.0])
+    harness.force_pub.publish(good)
+    assert wait_until(lambda: len(harness.node._force) == 2)
+    time.sleep(0.2)
+    assert len(harness.node._force) == 2
+    np.testing.assert_array_equal(harness.node._force.arrays()[1], [1.0, 2.0])
 
 
 def test_collection_stops_at_estimate_and_restarts_at_begin(harness, sim):

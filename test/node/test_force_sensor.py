@@ -16,6 +16,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from wind_shaper_msgs.msg import ForceBlock  # noqa: E402
 
 from wind_shaper.core.errors import ConfigError  # noqa: E402
 from wind_shaper.protocols.netft import RdtCommand, RdtRecord, encode_request  # noqa: E402
@@ -42,8 +43,10 @@ class Harness:
         self.client = rclpy.create_node('force_sensor_test_client', context=context)
         self.executor.add_node(self.client)
         self.nodes = []
-        self.wrenches, self.diagnostics = [], []
+        self.wrenches, self.diagnostics, self.blocks = [], [], []
         self.client.create_subscription(WrenchStamped, names.FORCE, self.wrenches.append,
+                                        qos.STREAM)
+        self.client.create_subscription(ForceBlock, names.FORCE_BLOCK, self.blocks.append,
                                         qos.STREAM)
         self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
                                         self.diagnostics.append, 10)
@@ -122,6 +125,25 @@ def test_wrenches_match_the_source_within_the_count_resolution(harness, force_si
     assert all(b >= a for a, b in zip(stamps, stamps[1:]))          # stamped at reception
     times = [m.wrench.force.x for m in msgs]
     assert all(b > a for a, b in zip(times, times[1:]))             # in order, no repeats
+
+
+def test_blocks_carry_every_published_sample_once_with_its_stamp_and_force(harness):
+    """What the field estimator reads: the same samples as the wrenches, in order, at most
+    block_samples a block, the last one sent once the stream stops."""
+    with SimNetFtServer(source, rate_hz=500.0) as server:
+        node = harness.start(server, block_samples=7, force_sign=-1)
+        assert wait_for(lambda: len(harness.wrenches) >= 300), len(harness.wrenches)
+        node.trigger_deactivate()               # the stream stops mid-block
+    assert wait_for(lambda: sum(len(b.stamp) for b in harness.blocks) == len(harness.wrenches),
+                    3.0), (sum(len(b.stamp) for b in harness.blocks), len(harness.wrenches))
+    stamps = [t for b in harness.blocks for t in b.stamp]
+    forces = [f for b in harness.blocks for f in b.force_z]
+    assert stamps == [stamp_to_seconds(w.header.stamp) for w in harness.wrenches]
+    assert forces == [w.wrench.force.z for w in harness.wrenches]
+    assert all(1 <= len(b.stamp) == len(b.force_z) <= 7 for b in harness.blocks)
+    assert sum(len(b.stamp) == 7 for b in harness.blocks) >= len(harness.blocks) - 3
+    assert all(b.header.frame_id == names.SENSOR_FRAME
+               and stamp_to_seconds(b.header.stamp) == b.stamp[-1] for b in harness.blocks)
 
 
 @pytest.mark.fault

@@ -119,10 +119,29 @@ class SampleBuffer:
             self._rows.append((t, *values))
             if t > self._newest:
                 self._newest = t
-            limit = self._newest - self.max_span_s
-            while self._rows and self._rows[0][0] < limit:
-                self._rows.popleft()
-                self.dropped += 1
+            self._drop_old_locked()
+
+    def extend(self, t, *values) -> None:
+        """Append a block of samples: ``t`` and each of ``values`` are sequences of one length,
+        oldest first; the same as ``append`` of each row in turn."""
+        if len(values) != self.n_values:
+            raise ValueError(f'expected {self.n_values} value columns, got {len(values)}')
+        rows = list(zip(t, *values))
+        if any(len(v) != len(t) for v in values):
+            raise ValueError(f'a block of {len(t)} stamps has value columns of lengths '
+                             f'{[len(v) for v in values]}')
+        if not rows:
+            return
+        with self._lock:
+            self._rows.extend(rows)
+            self._newest = max(self._newest, max(t))
+            self._drop_old_locked()
+
+    def _drop_old_locked(self) -> None:
+        limit = self._newest - self.max_span_s
+        while self._rows and self._rows[0][0] < limit:
+            self._rows.popleft()
+            self.dropped += 1
 
     def clear(self) -> None:
         with self._lock:

@@ -2,9 +2,10 @@
 
 Between ``/wind_shaper/field_estimator/begin_sweep`` (std_srvs/Trigger: clear the buffers, start
 collecting) and ``/wind_shaper/field_estimator/estimate`` (wind_shaper_msgs/EstimateField) it
-buffers the vertical force (``/wind_shaper/force``, WrenchStamped, force.z [N]; axis and sign
-are fixed upstream by force_sensor) and the plate centre (``/wind_shaper/plate/pose``,
-PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose with the mean
+buffers the vertical force (``/wind_shaper/force/block``, wind_shaper_msgs/ForceBlock, the
+blocks force_sensor sends; axis and sign are fixed upstream; with ``force_block_topic`` empty,
+``force_topic``'s per-sample WrenchStamped instead, force.z [N]) and the plate centre
+(``/wind_shaper/plate/pose``, PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose with the mean
 force over +-half a pose period around its stamp (``wind_shaper.estimation.align``), runs the core
 ``FieldEstimator`` (GET_CLOSEST + GP, settings from shaping.yaml's ``estimator`` section) at the
 key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/field`` (latched)
@@ -34,7 +35,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
-from wind_shaper_msgs.msg import FieldEstimate
+from wind_shaper_msgs.msg import FieldEstimate, ForceBlock
 from wind_shaper_msgs.srv import EstimateField, QueryField
 
 from ..app import Setup
@@ -53,8 +54,13 @@ from ..ros.runner import run
 class FieldEstimatorParams:
     config_dir: str = param('', "folder holding tunnel.yaml and shaping.yaml ('' = the shipped "
                             'config, or $WIND_SHAPER_CONFIG)')
+    force_block_topic: str = param(names.FORCE_BLOCK, 'wind_shaper_msgs/ForceBlock: blocks of '
+                                   'the vertical force on the plate [N] (what force_sensor '
+                                   "sends); '' = read force_topic instead")
     force_topic: str = param(names.FORCE, 'geometry_msgs/WrenchStamped; force.z is the vertical '
-                             'force on the plate [N], stamped at reception')
+                             'force on the plate [N], stamped at reception; read only when '
+                             "force_block_topic is '' (a force driver of your own, a bag "
+                             'replayed)')
     pose_topic: str = param(names.PLATE_POSE, 'geometry_msgs/PoseStamped plate centre '
                             '[m, tunnel frame], stamped at capture')
     max_buffer_s: float = param(300.0, 'longest sweep kept in the buffers; older samples are '
@@ -105,8 +111,12 @@ class FieldEstimatorNode(Node):
         streams = MutuallyExclusiveCallbackGroup()
         poses = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()  # begin and estimate never interleave
-        self.create_subscription(WrenchStamped, p.force_topic, self._on_force, qos.STREAM,
-                                 callback_group=streams)
+        if p.force_block_topic:
+            self.create_subscription(ForceBlock, p.force_block_topic, self._on_force_block,
+                                     qos.STREAM, callback_group=streams)
+        else:
+            self.create_subscription(WrenchStamped, p.force_topic, self._on_force, qos.STREAM,
+                                     callback_group=streams)
         self.create_subscription(PoseStamped, p.pose_topic, self._on_plate_pose, qos.STREAM,
                                  callback_group=poses)
         self._field_pub = self.create_publisher(FieldEstimate, names.FIELD, qos.LATCHED)
@@ -123,7 +133,7 @@ class FieldEstimatorNode(Node):
             self.create_timer(p.journal_sync_s, self._journal.sync)
         self.get_logger().info(
             f'{len(self._key_points)} key points, estimator {self._estimator}; '
-            f'force {p.force_topic}, pose {p.pose_topic}; journal '
+            f'force {p.force_block_topic or p.force_topic}, pose {p.pose_topic}; journal '
             f'{self._journal.root if self._journal else "off"}')
         if resumed is not None:
             self.get_logger().warning(
@@ -137,6 +147,19 @@ class FieldEstimatorNode(Node):
             if self._journal is not None:
                 self._journal.append_force(t, fz)
             self._force.append(t, fz)
+
+    def _on_force_block(self, msg: ForceBlock) -> None:
+        if not self._collecting:
+            return
+        t, fz = msg.stamp, msg.force_z
+        if len(t) != len(fz):
+            self.get_logger().warning(
+                f'a force block with {len(t)} stamps and {len(fz)} forces was dropped: the '
+                f'sender must give one stamp per force', throttle_duration_sec=5.0)
+            return
+        if self._journal is not None:
+            self._journal.append_forces(t, fz)
+        self._force.extend(t, fz)
 
     def _on_plate_pose(self, msg: PoseStamped) -> None:
         if self._collecting:
@@ -328,12 +351,12 @@ class FieldEstimatorNode(Node):
 
 
 def main(args=None) -> int:
-    # The events executor takes the 1 kHz force stream at a fraction of the single-threaded
-    # one's CPU (single-threaded, the held-plate batch's graph test failed in 1 of 3 runs and
-    # once in CI, with no answer from the coordinator, likely the stream's cost); an estimate
-    # (tens of ms) holds it up only after collection has stopped. Known risk: once, restarted
-    # after a SIGKILL mid-sweep on a busy machine, it never answered a service call again.
-    return run(FieldEstimatorNode, args, executor='events')
+    # Single-threaded, not rclpy's experimental events executor: restarted mid-sweep while the
+    # streams and the coordinator's calls kept coming, a node on it now and then never heard
+    # one of its subscriptions or its services again (about 1 restart in 20 under load, caught
+    # idle in the executor's wait). The force comes in blocks, so the stream costs tens of
+    # callbacks a second here, not a thousand.
+    return run(FieldEstimatorNode, args)
 
 
 if __name__ == '__main__':

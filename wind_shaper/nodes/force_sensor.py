@@ -2,8 +2,12 @@
 
 ``wind_shaper.io.NetFtClient`` reads the sensor's UDP stream on its own thread; every good
 sample is published from that thread on ``/wind_shaper/force`` (QoS STREAM), stamped at
-reception with the node clock, in ``frame_id`` [N, N m]. Samples whose status word is nonzero
-(saturation, broken gage, ...) are not published but counted and logged. Service
+reception with the node clock, in ``frame_id`` [N, N m]. The same samples also go out in blocks
+of ``block_samples`` on ``/wind_shaper/force/block`` (wind_shaper_msgs/ForceBlock: stamps and
+the vertical force), at the latest ``block_max_s`` after a block's first sample (when the
+stream stops, within half a second): the field estimator takes those, tens of messages a
+second instead of a thousand. Samples whose status
+word is nonzero (saturation, broken gage, ...) are not published but counted and logged. Service
 ``/wind_shaper/force_sensor/bias`` (std_srvs/Trigger) zeroes the sensor's current reading.
 /diagnostics at 1 Hz: received / lost / out-of-order / duplicates / rejected-source / faulted /
 malformed counts and the measured publish rate.
@@ -15,7 +19,8 @@ right-handed.
 Lifecycle: configure opens the UDP socket; activate asks the sensor to stream (and biases it
 with ``bias_on_start``); deactivate asks it to stop; cleanup / shutdown / destroy_node stop the
 stream and close the socket. With ``autostart`` (default) it configures and activates at start.
-Runs on the EventsExecutor: the stream does not go through the executor at all.
+The stream does not go through the executor at all; the executor (single-threaded) runs the
+services and timers only.
 """
 from __future__ import annotations
 
@@ -27,13 +32,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_srvs.srv import Trigger
+from wind_shaper_msgs.msg import ForceBlock
 
 from ..core.errors import ConfigError
 from ..protocols.netft import RDT_PORT, NetFtCalibration, NetFtSample, SampleClock
 from ..io import LinkConfigError, NetFtClient, NetFtStreamStats, TransportError
 from ..ros import diagnostics as diag
 from ..ros import names, qos
-from ..ros.convert import seconds_to_stamp
+from ..ros.convert import seconds_to_stamp, stamp_to_seconds
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 
@@ -58,6 +64,12 @@ class ForceSensorParams:
                                   'samples are stamped from their sequence numbers at this rate, '
                                   'anchored on the least-delayed packet, so host lag does not '
                                   'shift them; 0 = stamp at arrival [Hz]', low=0.0, high=10000.0)
+    block_samples: int = param(20, 'samples per ForceBlock on wind_shaper/force/block (0 = '
+                               'no blocks, only the per-sample wrenches)', low=0, high=100000)
+    block_max_s: float = param(0.05, 'a block goes out at the latest this long after its first '
+                               'sample, full or not (a slow stream; a stalled one within 0.5 s) '
+                               '[s]',
+                               low=0.001, high=10.0)
     restart_after_s: float = param(1.0, 'while active with no sample for this long, send the '
                                    'start request again (sensor booted late or rebooted) [s]',
                                    low=0.1, high=60.0)
@@ -93,6 +105,12 @@ class ForceSensorNode(LifecycleNode):
         self._last_fault = ''
         self._reported = (time.monotonic(), 0, NetFtStreamStats())
         self._pub = self.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
+        self._block_pub = (self.create_publisher(ForceBlock, names.FORCE_BLOCK, qos.STREAM)
+                           if p.block_samples > 0 else None)
+        self._block_lock = threading.Lock()   # the reader thread fills it, a timer flushes it
+        self._block_t: list[float] = []
+        self._block_fz: list[float] = []
+        self._block_began = 0.0               # time.monotonic() of the block's first sample
         self._pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.create_service(Trigger, names.FORCE_BIAS, self._handle_bias)
         self.create_timer(1.0, self._on_diagnostics_timer)
@@ -144,6 +162,7 @@ class ForceSensorNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._flush_block()
         with self._lock:
             self._state = 'inactive'
             client = self._client
@@ -175,6 +194,7 @@ class ForceSensorNode(LifecycleNode):
             client, self._client = self._client, None
         if client is not None:
             client.close()     # stop request, reader thread joined, socket closed
+            self._flush_block()
             self.get_logger().info(f'Net F/T stream closed ({reason})')
 
     # ---------------------------------------------------------------- stream
@@ -203,6 +223,32 @@ class ForceSensorNode(LifecycleNode):
         self._pub.publish(msg)
         self._published += 1
         self._last_sample = time.monotonic()
+        if self._block_pub is not None:
+            self._add_to_block(stamp_to_seconds(msg.header.stamp), f.z, self._last_sample)
+
+    def _add_to_block(self, t: float, fz: float, now: float) -> None:
+        with self._block_lock:
+            if not self._block_t:
+                self._block_began = now
+            self._block_t.append(t)
+            self._block_fz.append(fz)
+            due = (len(self._block_t) >= self.params.block_samples
+                   or now - self._block_began >= self.params.block_max_s)
+        if due:
+            self._flush_block()
+
+    def _flush_block(self) -> None:
+        """Publish the samples collected since the last block (none: nothing is sent)."""
+        with self._block_lock:
+            stamps, forces = self._block_t, self._block_fz
+            self._block_t, self._block_fz = [], []
+        if not stamps or self._block_pub is None:
+            return
+        block = ForceBlock()
+        block.header.stamp = seconds_to_stamp(stamps[-1])
+        block.header.frame_id = self.params.frame_id
+        block.stamp, block.force_z = stamps, forces
+        self._block_pub.publish(block)
 
     # ---------------------------------------------------------------- services, diagnostics
     def _handle_bias(self, request: Trigger.Request, response: Trigger.Response
@@ -223,8 +269,13 @@ class ForceSensorNode(LifecycleNode):
         return response
 
     def _on_stream_watch_timer(self) -> None:
-        """Re-send the start request while streaming should run but nothing arrives."""
+        """Send a block the stream left unfinished; re-send the start request while streaming
+        should run but nothing arrives."""
         client, now = self._client, time.monotonic()
+        with self._block_lock:
+            stalled = bool(self._block_t) and now - self._block_began >= self.params.block_max_s
+        if stalled:
+            self._flush_block()
         if self._state != 'active' or client is None:
             return
         last = max(self._last_sample or 0.0, self._last_request)
@@ -278,7 +329,7 @@ class ForceSensorNode(LifecycleNode):
 
 
 def main(args=None):
-    return run(ForceSensorNode, args, executor='events')
+    return run(ForceSensorNode, args)
 
 
 if __name__ == '__main__':

@@ -31,6 +31,7 @@ GRAPH_NODES = (FAN_OUTPUT, FORCE_SENSOR, MOCAP_RELAY, FIELD_ESTIMATOR, COORDINAT
 FAN_COMMAND = 'wind_shaper/fans/command'        # wind_shaper_msgs/FanCommand: wanted PWMs
 FAN_APPLIED = 'wind_shaper/fans/applied'        # wind_shaper_msgs/FanCommand: read back from the autopilot
 FORCE = 'wind_shaper/force'                     # geometry_msgs/WrenchStamped, sensor frame [N, N m]
+FORCE_BLOCK = 'wind_shaper/force/block'         # wind_shaper_msgs/ForceBlock: the same samples, tens at a time
 MOCAP_POSE = '/vrpn_mocap/plate/pose'            # geometry_msgs/PoseStamped, mocap frame (raw)
 PLATE_POSE = 'wind_shaper/plate/pose'           # geometry_msgs/PoseStamped, tunnel frame, plate centre
 FIELD = 'wind_shaper/field'                     # wind_shaper_msgs/FieldEstimate

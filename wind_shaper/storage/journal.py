@@ -9,8 +9,8 @@ the samples. ``SweepJournal`` keeps one folder per sweep under its root::
         OPEN        present while the sweep is being collected
         outcome     'estimated' or 'abandoned' (why the sweep was closed), once closed
 
-Each sample is one ``os.write`` on a file opened for appending, so it is in the kernel's page
-cache as soon as it arrived: killing the process (SIGKILL included) loses none. The files are
+Each sample (or block of samples, as the force arrives) is one ``os.write`` on a file opened
+for appending, so it is in the kernel's page cache as soon as it arrived: killing the process (SIGKILL included) loses none. The files are
 fsynced at least every ``sync_period_s`` while samples arrive (and by ``sync()``, which the node
 calls on a timer, and at ``close``), so a power cut loses at most that last batch. A process that starts again calls
 ``reopen()`` to get the unfinished sweep back and goes on appending to it. A torn last row (a
@@ -115,6 +115,16 @@ class SweepJournal:
             if self._fds is not None:
                 os.write(self._fds[0], _FORCE_ROW.pack(t, fz))
                 self.rows_written[0] += 1
+                self._wrote_locked()
+
+    def append_forces(self, t, fz) -> None:
+        """A block of force samples (sequences of one length, oldest first), in one write: the
+        same rows as ``append_force`` of each in turn."""
+        data = b''.join(_FORCE_ROW.pack(ti, fi) for ti, fi in zip(t, fz))
+        with self._lock:
+            if self._fds is not None and data:
+                os.write(self._fds[0], data)
+                self.rows_written[0] += len(data) // _FORCE_ROW.size
                 self._wrote_locked()
 
     def append_pose(self, t: float, x: float, y: float) -> None:
