@@ -15,7 +15,12 @@ simulated rig first, so the drivers find its sockets open).
 
 ``poll()`` notices a child that died, reports its exit code and log tail and restarts it after a
 backoff (``RestartPolicy``); a node that exits with code 2 (a configuration error: the node
-runner's convention) or that used up its restarts is given up, which ends the graph.
+runner's convention) or that used up its restarts is given up, which ends the graph. A child
+that is alive but hung is treated as dead: each node touches a heartbeat file while its executor
+runs (``HEARTBEAT_ENV``, ``wind_shaper.ros.runner``), and one whose heartbeat is older than
+``RestartPolicy.hang_after_s`` is killed (SIGKILL) and so restarted. (Seen: a node whose
+publish blocked forever in Fast DDS's shared-memory transport after the subscriber it was
+sending to had been killed; its stream was gone for good until the node was restarted.)
 ``shutdown()`` sends SIGINT to every child, waits ``grace_s``, then SIGKILLs what is left.
 """
 from __future__ import annotations
@@ -23,9 +28,11 @@ from __future__ import annotations
 import collections
 import ctypes
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -39,10 +46,13 @@ from .core.safe_yaml import read_yaml_file
 
 __all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'Stopped',
            'StopSignals',
-           'plan_graph', 'node_command', 'graph_env', 'format_value', 'CONFIG_ERROR_EXIT']
+           'plan_graph', 'node_command', 'graph_env', 'format_value', 'CONFIG_ERROR_EXIT',
+           'HEARTBEAT_ENV']
 
 #: Exit code of a node whose configuration is wrong (``wind_shaper.ros.runner``): never restarted.
 CONFIG_ERROR_EXIT = 2
+#: Environment variable naming the file a node touches while its executor runs (the runner).
+HEARTBEAT_ENV = 'WIND_SHAPER_HEARTBEAT'
 _PR_SET_PDEATHSIG = 1
 
 
@@ -185,16 +195,20 @@ class RestartPolicy:
     """Restart a node that died: ``enabled``; at most ``max_restarts`` times per node; after
     ``backoff_s`` [s], doubling each time up to ``max_backoff_s``; a node that ran for
     ``reset_after_s`` [s] since its last start has its count reset (a crash a day is not a
-    crash loop)."""
+    crash loop); a node whose heartbeat is older than ``hang_after_s`` [s] is hung and is
+    killed, so that it is restarted like one that died (0: never; it must exceed the longest
+    callback a node runs, an estimate of a large wall takes seconds)."""
 
     enabled: bool = True
     max_restarts: int = 3
     backoff_s: float = 1.0
     max_backoff_s: float = 10.0
     reset_after_s: float = 300.0
+    hang_after_s: float = 0.0
 
     def __post_init__(self):
-        if self.max_restarts < 0 or self.backoff_s < 0 or self.max_backoff_s < 0:
+        if (self.max_restarts < 0 or self.backoff_s < 0 or self.max_backoff_s < 0
+                or self.hang_after_s < 0):
             raise ValueError(f'restart policy values must be >= 0; got {self}')
 
     def delay(self, restarts_so_far: int) -> float:
@@ -229,6 +243,7 @@ class _Child:
     restart_at: float | None = None
     exit_code: int | None = None
     gave_up: bool = False
+    hung: bool = False
     pids: list = field(default_factory=list)
 
 
@@ -260,6 +275,8 @@ class Supervisor:
         self._out_lock = threading.Lock()
         self._preexec = _parent_death_signal()
         self._stopping = False
+        self._beats = (Path(tempfile.mkdtemp(prefix='wind_shaper_up_')) if policy.hang_after_s > 0
+                       else None)
 
     # ------------------------------------------------------------------ output
     def say(self, text: str) -> None:
@@ -298,8 +315,13 @@ class Supervisor:
             preexec = None   # the parent-death signal follows the forking thread: main only
         else:
             preexec = self._preexec
+        env = self.env
+        if self._beats is not None:
+            beat = self._beats / spec.name
+            beat.unlink(missing_ok=True)   # the new process beats for itself
+            env = {**env, HEARTBEAT_ENV: str(beat)}
         try:
-            process = subprocess.Popen(spec.argv, env=self.env, stdin=subprocess.DEVNULL,
+            process = subprocess.Popen(spec.argv, env=env, stdin=subprocess.DEVNULL,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                        start_new_session=True, preexec_fn=preexec)
         except OSError as exc:
@@ -308,6 +330,7 @@ class Supervisor:
             raise GraphError(f'cannot start node {spec.name} ({" ".join(spec.argv[:3])}...): '
                              f'{exc}') from None
         child.process, child.exit_code, child.restart_at = process, None, None
+        child.hung = False
         child.started_at = self.clock()
         child.pids.append(process.pid)
         child.reader = threading.Thread(target=self._pump, args=(child, process.stdout, log),
@@ -398,13 +421,19 @@ class Supervisor:
                              f'{child.process.pid}')
                 continue
             code = child.process.poll()
-            if code is None or child.exit_code is not None:
+            if code is None:
+                self._kill_if_hung(name, child, now)
+                continue
+            if child.exit_code is not None:
                 continue
             child.exit_code = code
             if now - child.started_at >= self.policy.reset_after_s:
                 child.restarts = 0
             report = (f'wind-shaper up: node {name} (pid {child.process.pid}) exited with code '
                       f'{code}; its last lines:\n{self._tail_text(name)}')
+            if child.hung:
+                report = (f'wind-shaper up: node {name} (pid {child.process.pid}) was killed: '
+                          f'hung (no heartbeat for {self.policy.hang_after_s:g} s)')
             if code == CONFIG_ERROR_EXIT:
                 reason = 'it reported a configuration error: fix it and start again'
             elif not self.policy.enabled:
@@ -419,6 +448,28 @@ class Supervisor:
             child.gave_up = True
             self.say(report)
             raise NodeGaveUp(f'node {name} exited with code {code} and is not restarted: {reason}')
+
+    def _kill_if_hung(self, name: str, child: _Child, now: float) -> None:
+        """SIGKILL a running child whose heartbeat is older than ``hang_after_s`` (or that has
+        not beaten within that long of its start); the next poll restarts it."""
+        hang_after = self.policy.hang_after_s
+        if self._beats is None or child.hung or now - child.started_at < hang_after:
+            return
+        try:
+            age = time.time() - (self._beats / name).stat().st_mtime
+        except OSError:
+            age = now - child.started_at          # never beat since it started
+        if age < hang_after:
+            return
+        child.hung = True
+        self.say(f'wind-shaper up: node {name} (pid {child.process.pid}) has not run its '
+                 f'executor for {age:.0f} s (no heartbeat; --hang-after {hang_after:g} s): it is '
+                 f'hung; killing it so that it is restarted; its last lines:\n'
+                 f'{self._tail_text(name)}')
+        try:
+            child.process.kill()
+        except ProcessLookupError:
+            pass
 
     def supervise(self, should_stop: Callable[[], bool], interval_s: float = 0.1,
                   during: Callable[[], None] | None = None) -> None:
@@ -458,6 +509,8 @@ class Supervisor:
         for child in self._children.values():
             if child.reader is not None:
                 child.reader.join(2.0)
+        if self._beats is not None:
+            shutil.rmtree(self._beats, ignore_errors=True)
         return {n: (c.process.returncode if c.process is not None else None)
                 for n, c in self._children.items()}
 

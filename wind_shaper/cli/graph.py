@@ -74,6 +74,9 @@ def register(subparsers) -> None:
     p.add_argument('--no-restart', action='store_true', help='do not restart a node that dies')
     p.add_argument('--max-restarts', type=int, default=3,
                    help='restarts per node before giving up (default 3; backoff 1, 2, 4 s)')
+    p.add_argument('--hang-after', type=float, default=20.0, metavar='S',
+                   help='restart a node whose executor has not run for this long: hung (default '
+                        '20 s; 0 = never) [s]')
     p.add_argument('--startup-timeout', type=_positive, default=60.0, metavar='S',
                    help='longest wait for every node to appear in the graph [s] (default 60)')
     p.add_argument('--iteration-timeout', type=_positive, default=600.0, metavar='S',
@@ -241,7 +244,12 @@ def _cmd_up(args) -> int:
     user_env = dict(os.environ)
     env = graph_env()
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE',) if k in env})
-    policy = RestartPolicy(enabled=not args.no_restart, max_restarts=max(0, args.max_restarts))
+    if args.hang_after < 0:
+        print(f'wind-shaper up: --hang-after must be 0 (never) or a number of seconds, not '
+              f'{args.hang_after:g}', file=sys.stderr)
+        return 2
+    policy = RestartPolicy(enabled=not args.no_restart, max_restarts=max(0, args.max_restarts),
+                           hang_after_s=args.hang_after if not args.no_restart else 0.0)
     sup = Supervisor(specs, env=env, policy=policy, log_dir=args.log_dir, grace_s=args.grace)
     code = 0
     client = None
