@@ -104,7 +104,8 @@ class CoordinatorParams:
                             'estimate uses all samples', low=1, high=10)
     service_timeout_s: float = param(10.0, 'wait at most this long for a field_estimator or sweep '
                                      'service to appear or to answer (a sweep: beyond its '
-                                     'duration) [s]', low=0.1, high=600.0)
+                                     'duration; an estimate: twice this, for a field_estimator '
+                                     'restarted mid-sweep) [s]', low=0.1, high=600.0)
     iteration_timeout_s: float = param(300.0, 'a whole iteration may take at most this long [s] '
                                        '(a request can override it)', low=1.0, high=86400.0)
     republish_hz: float = param(2.0, "rate of republishing the command in force (fan_output's "

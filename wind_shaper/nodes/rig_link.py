@@ -28,6 +28,13 @@ from ..ros.convert import estimate_from_msg, sweep_from_msg
 from ..ros.waiting import in_thread
 
 
+#: An estimate is asked for (again and again, ``Waits.call``) for up to this many times
+#: ``service_timeout_s``: a field_estimator restarted in the middle of a sweep answers only after
+#: its start-up and the backoff before it (seen: 11 s on a busy 2-core machine), and the samples
+#: its journal kept are worth the wait.
+ESTIMATE_PATIENCE = 2.0
+
+
 class RigLink:
     """The rig's ports for ``node`` (the coordinator: its parameters, lock, bookkeeping
     ``book``, run and ``waits``); see the module docstring."""
@@ -222,7 +229,7 @@ class RigLink:
             self._estimate_client,
             EstimateField.Request(iteration=k, fan_names=self.fan_names, pwm=[float(u) for u in U],
                                   required=required(plan)),
-            'field_estimator', self.params.service_timeout_s, resend=True)
+            'field_estimator', ESTIMATE_PATIENCE * self.params.service_timeout_s, resend=True)
         if not answer.success:  # a refused sweep's pairs come along when they could be paired
             refused = sweep_from_msg(answer.samples) if len(answer.samples.t) else None
             return FieldAnswer(False, answer.message, sweep=refused)
