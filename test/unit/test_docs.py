@@ -123,3 +123,14 @@ def test_package_xml_parses():
     catkin_pkg = pytest.importorskip('catkin_pkg.package')
     package = catkin_pkg.parse_package(str(ROOT / 'package.xml'))
     assert package.name == 'wind_shaper' and 'python3-sphinx' in {d.name for d in package.doc_depends}
+
+
+def test_the_changelog_has_a_dated_section_per_version_as_ros_tools_read_it():
+    """CHANGELOG.rst in the catkin format: the released package.xml version has a section
+    'X.Y.Z (YYYY-MM-DD)'; unreleased work sits under 'Forthcoming'."""
+    changelog = pytest.importorskip('catkin_pkg.changelog')
+    package = pytest.importorskip('catkin_pkg.package').parse_package(str(ROOT / 'package.xml'))
+    parsed = changelog.get_changelog_from_path(str(ROOT / 'CHANGELOG.rst'))
+    versions = {version: date for version, date, _ in parsed.foreach_version()}
+    assert package.version in versions and versions[package.version] is not None, versions
+    assert '\nForthcoming\n-----------\n' in (ROOT / 'CHANGELOG.rst').read_text()
