@@ -42,6 +42,7 @@ from typing import Callable, Iterable, Mapping, Sequence, TextIO
 import yaml
 
 from .core.errors import WindShaperError
+from .core.heartbeat import HEARTBEAT_ENV
 from .core.safe_yaml import read_yaml_file
 
 __all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp', 'Stopped',
@@ -51,8 +52,6 @@ __all__ = ['NodeSpec', 'RestartPolicy', 'Supervisor', 'GraphError', 'NodeGaveUp'
 
 #: Exit code of a node whose configuration is wrong (``wind_shaper.ros.runner``): never restarted.
 CONFIG_ERROR_EXIT = 2
-#: Environment variable naming the file a node touches while its executor runs (the runner).
-HEARTBEAT_ENV = 'WIND_SHAPER_HEARTBEAT'
 _PR_SET_PDEATHSIG = 1
 
 

@@ -16,17 +16,16 @@ would publish into it. Instead SIGINT and SIGTERM only set a flag (raising from 
 handler can land inside a pybind11 call and come out as a RuntimeError); the main thread spins
 in 0.2 s slices, sees the flag, and destroys the node while the context is still valid.
 
-Each slice also beats the heart: when ``WIND_SHAPER_HEARTBEAT`` names a file (the supervisor of
-``wind-shaper up`` sets it), its modification time is set to now at most every 0.5 s. A node
+Each slice also beats the heart (``core.heartbeat``): when ``WIND_SHAPER_HEARTBEAT`` names a file
+(the supervisor of ``wind-shaper up`` sets it), its modification time is set to now at most every
+0.5 s. A node
 whose executor thread is stuck (a callback that never returns, a publish blocked forever in the
 middle layer) stops beating, and the supervisor restarts it.
 """
 from __future__ import annotations
 
-import os
 import signal
 import sys
-import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -34,7 +33,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from ..core.errors import WindShaperError
-from ..supervisor import HEARTBEAT_ENV
+from ..core.heartbeat import Heartbeat
 
 
 class _StopFlag:
@@ -46,24 +45,6 @@ class _StopFlag:
 
 
 _stop = _StopFlag()
-
-
-class _Heartbeat:
-    """Touches the file of ``HEARTBEAT_ENV`` (if set) at most every ``period_s`` [s]."""
-
-    def __init__(self, path: str | None, period_s: float = 0.5):
-        self.path, self.period_s, self._last = path or None, period_s, -float('inf')
-
-    def beat(self) -> None:
-        now = time.monotonic()
-        if self.path is None or now - self._last < self.period_s:
-            return
-        self._last = now
-        try:
-            with open(self.path, 'a'):
-                os.utime(self.path)
-        except OSError:
-            self.path = None   # the supervisor's folder is gone: nobody is listening
 
 
 def _request_stop(signum, frame):
@@ -91,7 +72,7 @@ def run(node_cls, args=None, *, executor: str = 'single') -> int:
         ex.add_node(node)
         # spin() waits in C++ and would never let the Python signal handlers run.
         never = Future()
-        heart = _Heartbeat(os.environ.get(HEARTBEAT_ENV))
+        heart = Heartbeat.from_environment()
         while rclpy.ok() and not _stop.requested:
             heart.beat()
             ex.spin_until_future_complete(never, timeout_sec=0.2)
