@@ -322,17 +322,17 @@ def test_cancel_and_the_status_answer_while_the_largest_model_text_is_read(rig, 
             assert future.done(), f'{client.srv_name} did not answer within {timeout_s} s'
             return future.result(), time.monotonic() - t0
 
+        subscriptions = []   # destroyed once the spinner stops: destroying one while the other
+                             # thread waits on it killed that thread (rclpy InvalidHandle)
+
         def status_seconds(timeout_s=10.0):
             """A new subscriber's wait for the latched status, as `wind-shaper status` waits."""
             got = []
             t0 = time.monotonic()
-            sub = node.create_subscription(IterationStatus, names.STATUS,
-                                           lambda m: got.append(time.monotonic()), qos.LATCHED)
-            try:
-                while not got and time.monotonic() - t0 < timeout_s:
-                    time.sleep(0.002)
-            finally:
-                node.destroy_subscription(sub)
+            subscriptions.append(node.create_subscription(
+                IterationStatus, names.STATUS, lambda m: got.append(time.monotonic()), qos.LATCHED))
+            while not got and time.monotonic() - t0 < timeout_s:
+                time.sleep(0.002)
             assert got, f'no status within {timeout_s} s'
             return got[0] - t0
 
