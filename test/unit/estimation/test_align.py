@@ -150,3 +150,24 @@ def test_sample_buffer_takes_appends_from_many_threads():
     for th in threads:
         th.join(timeout=10)
     assert len(buf) == 8000 and buf.arrays()[1].sum() == 8000
+
+
+def test_a_block_of_samples_is_the_same_as_each_appended_in_turn():
+    """The field estimator takes the force in blocks (``extend``): the buffer must hold what
+    appending each sample would, the oldest rows dropped the same way."""
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 5.0, 200))
+    f = rng.normal(size=200)
+    one, block = SampleBuffer(1, 2.0), SampleBuffer(1, 2.0)
+    for ti, fi in zip(t, f):
+        one.append(ti, fi)
+    for start in range(0, 200, 20):
+        block.extend(t[start:start + 20], f[start:start + 20])
+    block.extend([], [])
+    for a, b in zip(one.arrays(), block.arrays()):
+        np.testing.assert_array_equal(a, b)
+    assert one.dropped == block.dropped > 0
+    with pytest.raises(ValueError, match='lengths'):
+        block.extend([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match='value columns'):
+        block.extend([1.0], [1.0], [2.0])
