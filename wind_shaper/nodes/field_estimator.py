@@ -5,17 +5,18 @@ collecting) and ``/wind_shaper/field_estimator/estimate`` (wind_shaper_msgs/Esti
 buffers the vertical force (``/wind_shaper/force/block``, wind_shaper_msgs/ForceBlock, the
 blocks force_sensor sends; axis and sign are fixed upstream; with ``force_block_topic`` empty,
 ``force_topic``'s per-sample WrenchStamped instead, force.z [N]) and the plate centre
-(``/wind_shaper/plate/pose``, PoseStamped [m, tunnel frame]). ``estimate`` stops collecting, pairs each pose with the mean
-force over +-half a pose period around its stamp (``wind_shaper.estimation.align``), runs the core
-``FieldEstimator`` (GET_CLOSEST + GP, settings from shaping.yaml's ``estimator`` section) at the
-key points of tunnel.yaml, publishes the ``FieldEstimate`` on ``/wind_shaper/field`` (latched)
-and returns it with the raw pairs (``SweepSamples``); ``/wind_shaper/field/query``
-(wind_shaper_msgs/QueryField) then gives the force and its std at any positions within the
-measured disc, from that estimate's GP (a robot's feed-forward). An estimate that fails (no samples, streams
-out of step, poor coverage) answers ``success: false`` with the reason and changes nothing: the
-buffers are kept and collection goes on if it was on, so the plate can sweep on and the
-coordinator can ask again; when the streams could be paired, the refused sweep's pairs come back
-in ``samples`` (an experiment keeps a flagged sweep). /diagnostics at 1 Hz.
+(``/wind_shaper/plate/pose``, PoseStamped [m, tunnel frame]). ``estimate`` stops collecting,
+pairs each pose with the mean force over +-half a pose period around its stamp
+(``wind_shaper.estimation.align``), runs the core ``FieldEstimator`` (GET_CLOSEST + GP, settings
+from shaping.yaml's ``estimator`` section) at the key points of tunnel.yaml, publishes the
+``FieldEstimate`` on ``/wind_shaper/field`` (latched) and returns it with the raw pairs
+(``SweepSamples``); ``/wind_shaper/field/query`` (wind_shaper_msgs/QueryField) then gives the
+force and its std at any positions within the measured disc, from that estimate's GP (a robot's
+feed-forward). An estimate that fails (no samples, streams out of step, poor coverage) answers
+``success: false`` with the reason and changes nothing: the buffers are kept and collection goes
+on if it was on, so the plate can sweep on and the coordinator can ask again; when the streams
+could be paired, the refused sweep's pairs come back in ``samples`` (an experiment keeps a
+flagged sweep). /diagnostics at 1 Hz.
 
 Every sample collected is also appended to the sweep journal (``journal_dir``,
 ``wind_shaper.storage.journal``) as it arrives. A field_estimator killed during a sweep and started
@@ -351,11 +352,11 @@ class FieldEstimatorNode(Node):
 
 
 def main(args=None) -> int:
-    # Single-threaded, not rclpy's experimental events executor: restarted mid-sweep while the
-    # streams and the coordinator's calls kept coming, a node on it now and then never heard
-    # one of its subscriptions or its services again (about 1 restart in 20 under load, caught
-    # idle in the executor's wait). The force comes in blocks, so the stream costs tens of
-    # callbacks a second here, not a thousand.
+    # Single-threaded, not rclpy's experimental events executor: in a loop of 33 restarts
+    # mid-sweep under load, one restarted estimator on it never answered a call again (not
+    # diagnosed; another such failure was mocap_relay blocked in Fast DDS, which `wind-shaper
+    # up --hang-after` now catches). Single-threaded on the force blocks: 0 of 46. The force
+    # comes in blocks, so the stream costs tens of callbacks a second here, not a thousand.
     return run(FieldEstimatorNode, args)
 
 

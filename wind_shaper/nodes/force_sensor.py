@@ -6,8 +6,8 @@ reception with the node clock, in ``frame_id`` [N, N m]. The same samples also g
 of ``block_samples`` on ``/wind_shaper/force/block`` (wind_shaper_msgs/ForceBlock: stamps and
 the vertical force), at the latest ``block_max_s`` after a block's first sample (when the
 stream stops, within half a second): the field estimator takes those, tens of messages a
-second instead of a thousand. Samples whose status
-word is nonzero (saturation, broken gage, ...) are not published but counted and logged. Service
+second instead of a thousand. Samples whose status word is nonzero (saturation, broken gage,
+...) are not published but counted and logged. Service
 ``/wind_shaper/force_sensor/bias`` (std_srvs/Trigger) zeroes the sensor's current reading.
 /diagnostics at 1 Hz: received / lost / out-of-order / duplicates / rejected-source / faulted /
 malformed counts and the measured publish rate.

@@ -153,9 +153,10 @@ class MocapRelayNode(Node):
 
 
 def main(args=None):
-    # Single-threaded, not rclpy's experimental events executor: a relay restarted after a
-    # SIGKILL on the events executor now and then received no pose again (seen in fault tests on
-    # a busy machine). Depth 100 (MOCAP_QOS) keeps the 100 Hz poses on a busy machine.
+    # Single-threaded, as every node: the wait set looks at what is really queued. (A relay
+    # restarted in fault tests on a busy machine now and then relayed no pose again; one such
+    # relay, caught, was blocked in Fast DDS's shared-memory publish, which `wind-shaper up
+    # --hang-after` now restarts.) Depth 100 (MOCAP_QOS) keeps the 100 Hz poses on a busy machine.
     return run(MocapRelayNode, args, executor='single')
 
 

@@ -16,11 +16,10 @@ would publish into it. Instead SIGINT and SIGTERM only set a flag (raising from 
 handler can land inside a pybind11 call and come out as a RuntimeError); the main thread spins
 in 0.2 s slices, sees the flag, and destroys the node while the context is still valid.
 
-Each slice also beats the heart (``core.heartbeat``): when ``WIND_SHAPER_HEARTBEAT`` names a file
-(the supervisor of ``wind-shaper up`` sets it), its modification time is set to now at most every
-0.5 s. A node
-whose executor thread is stuck (a callback that never returns, a publish blocked forever in the
-middle layer) stops beating, and the supervisor restarts it.
+Each slice also beats the heart (``core.heartbeat``): when ``WIND_SHAPER_HEARTBEAT`` names a
+file (the supervisor of ``wind-shaper up`` sets it), its modification time is set to now at most
+every 0.5 s. A node whose executor thread is stuck (a callback that never returns, a publish
+blocked forever in the middle layer) stops beating, and the supervisor restarts it.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""The graph as a plan (no rclpy): ``plan_graph`` turns a config folder into one ``NodeSpec`` per node,
-``python -m wind_shaper.nodes.<node> --ros-args --params-file <config>/<node>.yaml -p key:=value
-...``, sim_tunnel first when simulating; ``graph_env`` is the children's environment. The
-processes themselves are ``processes.Supervisor``'s.
+"""The graph as a plan (no rclpy): ``plan_graph`` turns a config folder into one ``NodeSpec``
+per node, ``python -m wind_shaper.nodes.<node> --ros-args --params-file <config>/<node>.yaml -p
+key:=value ...``, sim_tunnel first when simulating; ``graph_env`` is the children's environment.
+The processes themselves are ``processes.Supervisor``'s.
 """
 from __future__ import annotations
 

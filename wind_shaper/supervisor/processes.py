@@ -1,8 +1,8 @@
 """Run the node graph as separate OS processes and look after them (no argparse, no rclpy).
 
-``Supervisor`` starts the processes of the plan (``plan.plan_graph``), each in its own session (a Ctrl-C
-in the terminal reaches only the supervisor, which then stops the children in order) and, on
-Linux, with a parent-death signal (if the supervisor itself is killed, its children get SIGTERM
+``Supervisor`` starts the processes of the plan (``plan.plan_graph``), each in its own session
+(a Ctrl-C in the terminal reaches only the supervisor, which then stops the children in order)
+and, on Linux, with a parent-death signal (if the supervisor itself is killed, its children get SIGTERM
 instead of running on). Every line a child prints is echoed with the node's name in front and
 kept in a tail for error reports.
 
@@ -15,8 +15,8 @@ simulated rig first, so the drivers find its sockets open).
 backoff (``RestartPolicy``); a node that exits with code 2 (a configuration error: the node
 runner's convention) or that used up its restarts is given up, which ends the graph. A child
 that is alive but hung is treated as dead: each node touches a heartbeat file while its executor
-runs (``HEARTBEAT_ENV``, ``wind_shaper.ros.runner``), and one whose heartbeat is older than
-``RestartPolicy.hang_after_s`` is killed (SIGKILL) and so restarted. (Seen: a node whose
+runs (``core.heartbeat``, called by ``wind_shaper.ros.runner``), and one whose heartbeat is
+older than ``RestartPolicy.hang_after_s`` is killed (SIGKILL) and so restarted. (Seen: a node whose
 publish blocked forever in Fast DDS's shared-memory transport after the subscriber it was
 sending to had been killed; its stream was gone for good until the node was restarted.)
 ``shutdown()`` sends SIGINT to every child, waits ``grace_s``, then SIGKILLs what is left.
