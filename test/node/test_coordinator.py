@@ -452,9 +452,13 @@ def test_with_region_sweeps_on_the_sweep_and_the_estimate_are_asked_for_the_regi
     points only; the run records the region and the fused estimate."""
     config = edited_config(tmp_path, 'region', [('enabled: false', 'enabled: true')])
     graph.start_coordinator(config_dir=config, sweep_duration_s=1.0, sweep_min_s=0.2)
-    for _ in range(3):
+    # a region is swept once a step's predicted change is small enough to carry the rest
+    # over (the first steps from the warm start move the field by 0.3-1.5 N RMS)
+    for _ in range(6):
         r = graph.iterate(target='gaussian@LM1')
         assert r.success, r.message
+        if any(len(q.region_x) for q in graph.rig.sweep_requests):
+            break
     sweeps, estimates = graph.rig.sweep_requests, graph.rig.estimate_requests
     n_keys = len(graph.setup.geometry.key_points)
     assert len(sweeps[0].region_x) == 0 and len(estimates[0].required) == 0

@@ -1,4 +1,5 @@
-"""Field estimation: GET_CLOSEST subsampling of a sweep and Gaussian-process regression.
+"""Field estimation: the samples a GP takes from a sweep (the paper's GET_CLOSEST, or every
+sample averaged in short windows along the plate's path) and Gaussian-process regression.
 
 Positions are plate centres [m, tunnel frame]; forces are vertical plate forces [N].
 """
@@ -64,6 +65,53 @@ def closest_samples(sweep: Sweep, key_points: np.ndarray, min_picked: int = 0) -
         idx = np.asarray(near, dtype=int).ravel()
     unique = np.unique(idx)
     return Subsample(clean.positions[unique], clean.forces[unique], dist, clean.times[unique])
+
+
+#: A window spans at most this much of the plate's path [m] (``windowed_samples``), so a fast
+#: plate's windows hold fewer samples: the average of a window is the field at its mean
+#: position only while the field is nearly straight across it, and the field is smooth over
+#: the 20 cm plate. A longer step (a mocap glitch, a gap after lost samples, sensors at fixed
+#: places read at one time: ``sim.static_grid``) always starts a new window.
+WINDOW_PATH_M = 0.03
+
+
+def windowed_samples(sweep: Sweep, key_points: np.ndarray, window_s: float) -> Subsample:
+    """Every finite sample of ``sweep``, averaged over consecutive windows of ``window_s`` [s]
+    along the plate's path (position, force and time averaged; a window never spans more than
+    ``WINDOW_PATH_M`` of path or a repeated time), with each key point's distance to its
+    nearest raw sample (coverage).
+
+    Why all samples: the nearest sample per key point (GET_CLOSEST) leaves the GP interpolating
+    between passes on a smoothness it has to assume, and the std it reports there was 1.1-1.4
+    times too small on short sweeps (bench/convergence.py, z RMS). Why windows: the GP's cost
+    grows with the cube of its samples; 0.04 s windows halve them at the simulated rig's 50 Hz,
+    and a faster force sensor gives more samples per window instead of a larger GP."""
+    clean = sweep.finite()
+    if len(clean) == 0:
+        raise SweepError(f'none of the sweep\'s {len(sweep)} samples is finite: check the force '
+                         f'sensor and motion-capture streams')
+    if not window_s > 0:
+        raise ConfigError(f'the sample window must be > 0 s; got {window_s!r}')
+    key_points = np.asarray(key_points, dtype=float)
+    dist = np.linalg.norm(clean.positions[get_closest(clean.positions, key_points)] - key_points, axis=1)
+    order = np.argsort(clean.times, kind='stable')
+    X, y, t = clean.positions[order], clean.forces[order], clean.times[order]
+    # a sample on a window's edge (every other one at 50 Hz) stays in the same window when its
+    # time was rounded on the way (a bag keeps nanoseconds)
+    slot = np.floor((t - t[0]) / window_s + 1e-6)
+    step = np.linalg.norm(np.diff(X, axis=0), axis=1)
+    new = np.ones(len(t), dtype=bool)
+    new[1:] = (slot[1:] != slot[:-1]) | (t[1:] <= t[:-1]) | (step > WINDOW_PATH_M)
+    # a window of time that runs over more path than WINDOW_PATH_M is cut into pieces of it
+    path = np.concatenate([[0.0], np.cumsum(step)])
+    first = np.maximum.accumulate(np.where(new, np.arange(len(t)), 0))
+    piece = np.floor((path - path[first]) / WINDOW_PATH_M + 1e-9)
+    new[1:] |= piece[1:] != piece[:-1]
+    starts = np.flatnonzero(new)
+    count = np.diff(np.append(starts, len(t)))[:, None]
+    return Subsample(np.add.reduceat(X, starts, axis=0) / count,
+                     np.add.reduceat(y, starts) / count[:, 0], dist,
+                     np.add.reduceat(t, starts) / count[:, 0])
 
 
 class GaussianProcessField:
@@ -314,8 +362,14 @@ class FieldEstimator:
     signal_std: float | None = None
     min_samples: int = 50
     max_gap: float = 0.08
-    #: the turbulent model picks at least about this many samples: with fewer key points each
-    #: brings its nearest few (``closest_samples``); the white model keeps GET_CLOSEST's one
+    #: turbulent model: the GP takes every sample of the sweep, averaged over windows of this
+    #: many seconds along the plate's path (``windowed_samples``), unless that leaves more than
+    #: ``max_exact`` (a large wall: then, and with 0 here, the samples nearest to the key
+    #: points, as the white model always takes: GET_CLOSEST)
+    sample_window_s: float = 0.04
+    #: turbulent model with sample_window_s 0: it picks at least about this many samples (with
+    #: fewer key points each brings its nearest few, ``closest_samples``); the white model
+    #: keeps GET_CLOSEST's one
     min_picked: int = 300
     #: exact: one GP on all picked samples; local: the same model solved tile by tile for large
     #: walls (``LocalTurbulentGaussianProcessField``, or ``LocalGaussianProcessField`` for the
@@ -347,7 +401,7 @@ class FieldEstimator:
     turbulence_bounds: Mapping | None = None
     min_fit_samples: int = 60
     #: samples per run of the fit's composite likelihood (0: the exact likelihood, n^3 per step)
-    fit_block: int = 80
+    fit_block: int = 240
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
@@ -360,6 +414,9 @@ class FieldEstimator:
                 raise ConfigError(f'estimator {name} must be (low, high) with 0 < low <= high; got '
                                   f'{getattr(self, name)}')
             object.__setattr__(self, name, (lo, hi))
+        if not (isinstance(self.sample_window_s, (int, float)) and 0 <= self.sample_window_s <= 1):
+            raise ConfigError(f'estimator sample_window_s must be 0 (the closest samples) or a '
+                              f'window of up to 1 s; got {self.sample_window_s!r}')
         if self.noise_model == 'turbulent':
             self.turbulence_start(1.0)             # validates the start values
             LocalTurbulentGaussianProcessField(  # validates the fit and tile settings
@@ -395,7 +452,7 @@ class FieldEstimator:
             else:
                 make = TurbulentGaussianProcessField
             if isinstance(old, TurbulentGaussianProcessField) and (old.fitted_ or old.reused_):
-                gp = make(old.params_, self.fit_bounds, fit_parameters=False)
+                gp = make(old.params_, self.fit_bounds, fit_parameters=False, block=self.fit_block)
                 gp.reused_ = True   # fitted values, carried on (they may be reused again)
                 return gp
             spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
@@ -424,8 +481,16 @@ class FieldEstimator:
         if len(clean) < self.min_samples:
             raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
                              f'{self.min_samples} are needed: sweep longer or check the streams')
-        sub = closest_samples(clean, key_points,
-                              self.min_picked if self.noise_model == 'turbulent' else 0)
+        sub = None
+        if self.noise_model == 'turbulent' and self.sample_window_s > 0:
+            sub = windowed_samples(clean, key_points, self.sample_window_s)
+            if len(sub.forces) > self.max_exact:
+                # a large wall's long sweep: the tiled GP on the samples nearest the key points,
+                # as measured at scale (bench/scale.py); all of them would cost several times more
+                sub = None
+        if sub is None:
+            sub = closest_samples(clean, key_points,
+                                  self.min_picked if self.noise_model == 'turbulent' else 0)
         far = sub.key_distance > self.max_gap
         if required is not None:
             far &= np.asarray(required, dtype=bool)
