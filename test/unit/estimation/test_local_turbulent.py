@@ -92,8 +92,9 @@ def test_the_fit_on_all_samples_and_on_a_bounded_subset_agree(rig):
     sweep, _ = sweep_at(rig, seed=5, n_samples=1000)
     sub = FieldEstimator(method='exact').estimate(sweep, rig.key_points).gp
     X, y, t = sub.X_, sub.y_, sub.t_
-    full = LocalTurbulentGaussianProcessField(sub.start).fit(X, y, t)
-    part = LocalTurbulentGaussianProcessField(sub.start, max_fit_samples=len(y) // 2).fit(X, y, t)
+    full = LocalTurbulentGaussianProcessField(sub.start, block=sub.block).fit(X, y, t)
+    part = LocalTurbulentGaussianProcessField(sub.start, block=sub.block,
+                                              max_fit_samples=len(y) // 2).fit(X, y, t)
     assert full.fitted_ and part.fitted_ and full.fit_samples_ == len(y)
     assert 0 < part.fit_samples_ <= len(y) // 2
     assert full.params_ == sub.params_              # all samples: the exact GP's fit exactly
