@@ -400,8 +400,14 @@ class FieldEstimator:
     #: ``length_scale_bounds``
     turbulence_bounds: Mapping | None = None
     min_fit_samples: int = 60
-    #: samples per run of the fit's composite likelihood (0: the exact likelihood, n^3 per step)
-    fit_block: int = 240
+    #: turbulent model: the fit's composite likelihood runs over about this many seconds of
+    #: sweep (``fit_runs``): long enough for the plate to pass a place again within a run, so
+    #: the field's length scale is told apart from the gusts (runs of 1.6 s took the length
+    #: scale 20 % too long); 0: runs of ``fit_block`` samples
+    fit_run_s: float = 9.6
+    #: samples per run when fit_run_s is 0 or the samples' times do not advance (0: the exact
+    #: likelihood, n^3 per step)
+    fit_block: int = 80
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
@@ -414,6 +420,9 @@ class FieldEstimator:
                 raise ConfigError(f'estimator {name} must be (low, high) with 0 < low <= high; got '
                                   f'{getattr(self, name)}')
             object.__setattr__(self, name, (lo, hi))
+        if not (isinstance(self.fit_run_s, (int, float)) and 0 <= self.fit_run_s <= 600):
+            raise ConfigError(f'estimator fit_run_s must be 0 (runs of fit_block samples) or up to '
+                              f'600 s; got {self.fit_run_s!r}')
         if not (isinstance(self.sample_window_s, (int, float)) and 0 <= self.sample_window_s <= 1):
             raise ConfigError(f'estimator sample_window_s must be 0 (the closest samples) or a '
                               f'window of up to 1 s; got {self.sample_window_s!r}')
@@ -437,10 +446,21 @@ class FieldEstimator:
                                     self.absolute_noise, self.relative_noise, self.gust_fraction,
                                     self.gust_time)
 
-    def make_gp(self, n_samples: int, positions=None, forces=None, reuse=None):
+    def fit_runs(self, times=None) -> int:
+        """Samples per run of the turbulent fit's composite likelihood: about ``fit_run_s`` of
+        sweep at the samples' median spacing in ``times`` [s] (10 at least), or ``fit_block``
+        when fit_run_s is 0 or the times do not advance (sensors read at one time)."""
+        if self.fit_run_s > 0 and times is not None and len(times) > 1:
+            spacing = float(np.median(np.diff(np.sort(np.asarray(times, dtype=float)))))
+            if spacing > 0:
+                return max(10, int(round(self.fit_run_s / spacing)))
+        return self.fit_block
+
+    def make_gp(self, n_samples: int, positions=None, forces=None, reuse=None, times=None):
         """The GP this estimator uses for ``n_samples`` picked samples (hyperparameters
         estimated from positions/forces when fitted; ``reuse``: an earlier estimate of the same
-        sweep whose fitted hyperparameters to take instead of fitting again)."""
+        sweep whose fitted hyperparameters to take instead of fitting again; ``times`` [s]: the
+        samples' times, for the length of the fit's runs, ``fit_runs``)."""
         local = self.method == 'local' or (self.method == 'auto' and n_samples > self.max_exact)
         old = getattr(reuse, 'gp', None)
         if self.noise_model == 'turbulent':
@@ -452,12 +472,12 @@ class FieldEstimator:
             else:
                 make = TurbulentGaussianProcessField
             if isinstance(old, TurbulentGaussianProcessField) and (old.fitted_ or old.reused_):
-                gp = make(old.params_, self.fit_bounds, fit_parameters=False, block=self.fit_block)
+                gp = make(old.params_, self.fit_bounds, fit_parameters=False, block=self.fit_runs(times))
                 gp.reused_ = True   # fitted values, carried on (they may be reused again)
                 return gp
             spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
             return make(self.turbulence_start(spread), self.fit_bounds,
-                        min_fit_samples=self.min_fit_samples, block=self.fit_block)
+                        min_fit_samples=self.min_fit_samples, block=self.fit_runs(times))
         if local:
             return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
                                              self.local_block, self.local_halo)
@@ -512,7 +532,7 @@ class FieldEstimator:
         estimate of the same sweep (fewer samples) whose fitted hyperparameters to use instead
         of fitting them again (an adaptive sweep's interim estimates)."""
         sub = self._checked(sweep, key_points, required)
-        gp = self.make_gp(len(sub.forces), sub.positions, sub.forces, reuse=reuse)
+        gp = self.make_gp(len(sub.forces), sub.positions, sub.forces, reuse=reuse, times=sub.times)
         if isinstance(gp, TurbulentGaussianProcessField):
             gp.fit(sub.positions, sub.forces, sub.times)
         else:

@@ -113,18 +113,30 @@ def test_an_estimate_reusing_fitted_values_keeps_the_estimators_runs(rig):
     sim = SimulatedTunnel(rig, seed=4)
     sim.apply(np.full(7, 0.5))
     sweep = sim.sweep(600)
-    est = FieldEstimator(fit_block=150)
+    est = FieldEstimator(fit_run_s=6.0)          # 150 windows of 0.04 s
     first = est.estimate(sweep, rig.key_points)
     again = est.estimate(sweep, rig.key_points, reuse=first)
-    assert again.gp.block == 150 and again.gp.reused_
+    assert first.gp.block == again.gp.block == 150 and again.gp.reused_
     np.testing.assert_allclose(again.gp.level_, first.gp.level_)
     np.testing.assert_allclose(again.mean, first.mean, rtol=1e-9)
 
 
-@pytest.mark.parametrize('bad', [-0.01, 2.0, 'x'])
-def test_a_sample_window_out_of_range_is_refused(bad):
-    with pytest.raises(ConfigError, match='sample_window_s'):
-        FieldEstimator(sample_window_s=bad)
+def test_the_fits_runs_span_seconds_of_sweep_whatever_the_sample_rate():
+    est = FieldEstimator()                        # 9.6 s
+    assert est.fit_runs(np.arange(500) * 0.04) == 240          # 0.04 s windows
+    assert est.fit_runs(np.arange(5000) * 0.1) == 96           # a large wall's nearest samples
+    assert est.fit_runs(np.arange(100) * 1.0) == 10            # never below 10
+    # sensors read at one time, or runs asked in samples: fit_block
+    assert est.fit_runs(np.full(50, 20.0)) == est.fit_runs(None) == 80
+    assert FieldEstimator(fit_run_s=0, fit_block=0).fit_runs(np.arange(500) * 0.04) == 0
+
+
+@pytest.mark.parametrize('field, bad', [('sample_window_s', -0.01), ('sample_window_s', 2.0),
+                                        ('sample_window_s', 'x'), ('fit_run_s', -1.0),
+                                        ('fit_run_s', 1e4)])
+def test_a_window_or_run_out_of_range_is_refused(field, bad):
+    with pytest.raises(ConfigError, match=field):
+        FieldEstimator(**{field: bad})
 
 
 def test_gp_recovers_a_known_field_within_tolerance(rig, rng):
