@@ -405,9 +405,11 @@ class FieldEstimator:
     #: the field's length scale is told apart from the gusts (runs of 1.6 s took the length
     #: scale 20 % too long); 0: runs of ``fit_block`` samples
     fit_run_s: float = 9.6
-    #: samples per run when fit_run_s is 0 or the samples' times do not advance (0: the exact
-    #: likelihood, n^3 per step)
-    fit_block: int = 80
+    #: the most samples per run (a graph's plate is fast and its windows short: runs of 9.6 s
+    #: held 900 samples and an estimate took over 12 s on a loaded machine), and the samples per
+    #: run when fit_run_s is 0 or the samples' times do not advance (0: no limit; with
+    #: fit_run_s 0 the exact likelihood, n^3 per step)
+    fit_block: int = 240
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
@@ -448,12 +450,14 @@ class FieldEstimator:
 
     def fit_runs(self, times=None) -> int:
         """Samples per run of the turbulent fit's composite likelihood: about ``fit_run_s`` of
-        sweep at the samples' median spacing in ``times`` [s] (10 at least), or ``fit_block``
-        when fit_run_s is 0 or the times do not advance (sensors read at one time)."""
+        sweep at the samples' median spacing in ``times`` [s] (10 at least, ``fit_block`` at
+        most: a run's cost grows with its cube), or ``fit_block`` when fit_run_s is 0 or the
+        times do not advance (sensors read at one time)."""
         if self.fit_run_s > 0 and times is not None and len(times) > 1:
             spacing = float(np.median(np.diff(np.sort(np.asarray(times, dtype=float)))))
             if spacing > 0:
-                return max(10, int(round(self.fit_run_s / spacing)))
+                runs = max(10, int(round(self.fit_run_s / spacing)))
+                return min(runs, self.fit_block) if self.fit_block > 0 else runs
         return self.fit_block
 
     def make_gp(self, n_samples: int, positions=None, forces=None, reuse=None, times=None):

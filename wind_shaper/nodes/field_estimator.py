@@ -86,6 +86,11 @@ class FieldEstimatorNode(Node):
         self._key_points = setup.geometry.key_points
         self._fan_names = list(setup.geometry.fans.names)
         self._estimator = setup.shaping.make_estimator()
+        #: a sweep's estimates reuse the hyperparameters fitted at its first one until it has
+        #: grown this many times (``shaping.sweep.refit_growth``, as the in-process loop does):
+        #: a fit costs a few hundred ms, and the coordinator peeks every couple of seconds
+        self._refit_growth = float(setup.shaping.make_sweep_length().refit_growth)
+        self._sweep_fit = None   # (the sweep's estimate with fitted values, its number of pairs)
         self._query_radius = float(setup.geometry.sweep_radius)
         self._latest = None   # (FieldEstimate with its GP, iteration, end-of-sweep stamp [s])
         self._lock = threading.Lock()  # collecting flag + the buffers' begin/end
@@ -179,6 +184,7 @@ class FieldEstimatorNode(Node):
                 folder = self._journal.begin()   # an unfinished sweep before it: 'abandoned'
             self._collecting = True
             self._began_at = time.monotonic()
+            self._sweep_fit = None
         response.success = True
         response.message = 'collecting force and plate pose: move the plate, then call estimate' + (
             f' (journal: {folder})' if self._journal is not None else '')
@@ -203,7 +209,7 @@ class FieldEstimatorNode(Node):
             t_start = float(finite.min()) if len(finite) else 0.0
             t_compute = time.perf_counter()
             sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
-            est = self._estimator.estimate(sweep, self._key_points, required=required)
+            est = self._estimate(sweep, required)
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             with self._lock:
@@ -241,6 +247,17 @@ class FieldEstimatorNode(Node):
         response.message = message
         return response
 
+    def _estimate(self, sweep, required):
+        """The field from ``sweep`` (the key points ``required`` must be passed), reusing the
+        hyperparameters this sweep's first estimate fitted until the sweep has grown
+        ``refit_growth`` times."""
+        fit = self._sweep_fit
+        reuse = fit[0] if fit is not None and len(sweep) < self._refit_growth * fit[1] else None
+        est = self._estimator.estimate(sweep, self._key_points, required=required, reuse=reuse)
+        if reuse is None:
+            self._sweep_fit = (est, len(sweep))
+        return est
+
     def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
         """How far the sweep is: the estimate from what is collected so far, collection going
         on; nothing is journalled or closed; the field so far goes out on wind_shaper/field/partial
@@ -262,8 +279,7 @@ class FieldEstimatorNode(Node):
                                             stamp=seconds_to_stamp(t_start))
             # one GP for both: the field so far, published for the live view whatever the
             # coverage, is the peek's answer once the (required) key points are passed
-            est = self._estimator.estimate(sweep, self._key_points,
-                                           required=np.zeros(len(self._key_points), dtype=bool))
+            est = self._estimate(sweep, np.zeros(len(self._key_points), dtype=bool))
             self._partial_pub.publish(estimate_to_msg(
                 est, request.iteration, names_, pwm, len(sweep),
                 stamp=seconds_to_stamp(t_start + sweep.times[-1])))

@@ -122,12 +122,14 @@ def test_an_estimate_reusing_fitted_values_keeps_the_estimators_runs(rig):
 
 
 def test_the_fits_runs_span_seconds_of_sweep_whatever_the_sample_rate():
-    est = FieldEstimator()                        # 9.6 s
+    est = FieldEstimator()                        # 9.6 s, at most 240 samples
     assert est.fit_runs(np.arange(500) * 0.04) == 240          # 0.04 s windows
     assert est.fit_runs(np.arange(5000) * 0.1) == 96           # a large wall's nearest samples
     assert est.fit_runs(np.arange(100) * 1.0) == 10            # never below 10
+    assert est.fit_runs(np.arange(2000) * 0.01) == 240         # a fast plate's short windows
+    assert FieldEstimator(fit_block=0).fit_runs(np.arange(2000) * 0.01) == 960   # no limit
     # sensors read at one time, or runs asked in samples: fit_block
-    assert est.fit_runs(np.full(50, 20.0)) == est.fit_runs(None) == 80
+    assert est.fit_runs(np.full(50, 20.0)) == est.fit_runs(None) == 240
     assert FieldEstimator(fit_run_s=0, fit_block=0).fit_runs(np.arange(500) * 0.04) == 0
 
 
