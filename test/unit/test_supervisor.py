@@ -132,6 +132,12 @@ def test_discovery_stays_local_unless_the_user_chose():
     assert graph_env({})['PYTHONUNBUFFERED'] == '1'
 
 
+def test_the_graph_talks_over_udp_unless_the_user_chose_the_transports():
+    # a node restarted after SIGKILL can stay deaf on Fast DDS's shared memory
+    assert graph_env({})['FASTDDS_BUILTIN_TRANSPORTS'] == 'UDPv4'
+    assert graph_env({'FASTDDS_BUILTIN_TRANSPORTS': 'SHM'})['FASTDDS_BUILTIN_TRANSPORTS'] == 'SHM'
+
+
 def test_restart_backoff_doubles_up_to_a_cap():
     p = RestartPolicy(backoff_s=1.0, max_backoff_s=5.0)
     assert [p.delay(n) for n in range(5)] == [1.0, 2.0, 4.0, 5.0, 5.0]

@@ -132,10 +132,20 @@ def graph_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
     """The children's environment: ``base`` (default os.environ) with unbuffered Python output
     and ROS discovery kept on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) unless the
     user chose a discovery setting (ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_LOCALHOST_ONLY or
-    ROS_STATIC_PEERS)."""
+    ROS_STATIC_PEERS), and Fast DDS on UDP only (FASTDDS_BUILTIN_TRANSPORTS=UDPv4) unless the
+    user chose its transports.
+
+    Why UDP: the supervisor restarts a node killed or hung in the middle of a stream, and Fast
+    DDS's shared-memory transport does not always recover from a participant killed while it
+    used a port: the restarted node matched every endpoint and received nothing, for minutes
+    (seen once in a fresh-clone run: a field_estimator restarted mid-sweep never answered again,
+    and eight fault scenarios after it failed; eProsima/Fast-DDS issues 5053 and 5469 describe
+    the same). Loopback UDP carries the graph's few hundred small messages a second easily."""
     env = dict(os.environ if base is None else base)
     env['PYTHONUNBUFFERED'] = '1'
     if not any(env.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY',
                                     'ROS_STATIC_PEERS')):
         env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    if not env.get('FASTDDS_BUILTIN_TRANSPORTS'):
+        env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'
     return env
