@@ -28,6 +28,7 @@ NOT_QUICK = {
     'diagnosis_speed': 'times full workbench diagnoses: minutes',
     'faults': 'fault injection through the node graph',
     'force_stream': 'the ROS force stream at kHz rates (several processes)',
+    'kill_loop': 'kills nodes of the node graph tens of times: minutes',
     'fuzz': 'runs at its quickest in test/fuzz/test_fuzz.py (two targets, two examples)',
     'hosts': 'the node graph across processes',
     'iteration_split': 'runs wind-shaper up (six processes)',
