@@ -99,6 +99,15 @@ class Loop:
                'iterate': call.returncode, 'field_query': query.returncode}
         row['ok'] = started and m is not None and call.returncode == 0 and query.returncode == 0
         if not row['ok']:
+            # where is each node waiting? (the nodes print their threads' stacks on SIGUSR1)
+            for pid in list(self.pids.values()):
+                try:
+                    os.kill(pid, signal.SIGUSR1)
+                except ProcessLookupError:
+                    pass
+            time.sleep(2.0)
+            row['stacks'] = [line for line in self.new_lines()
+                             if 'File "' in line or 'Thread 0x' in line or 'Current thread' in line]
             lines = self.new_lines()
             row['lines'] = ([line for line in lines if f'[{node}' in line or node in line][-12:]
                             + [line for line in lines if '[coordinator' in line][-6:])
@@ -142,6 +151,7 @@ def main(argv=None) -> int:
                       f"{row['iterate']}, field query exit {row['field_query']})", flush=True)
                 if not row['ok']:
                     print('\n'.join('    ' + line for line in row['lines']), flush=True)
+                    print('\n'.join('    ' + line for line in row['stacks']), flush=True)
         finally:
             for b in burners:
                 b.terminate()

@@ -37,21 +37,25 @@ def source(t):
 
 
 class Harness:
-    def __init__(self, context):
+    def __init__(self, context, wrenches=True):
         self.context = context
         self.executor = SingleThreadedExecutor(context=context)
         self.client = rclpy.create_node('force_sensor_test_client', context=context)
         self.executor.add_node(self.client)
         self.nodes = []
         self.wrenches, self.diagnostics, self.blocks = [], [], []
-        self.client.create_subscription(WrenchStamped, names.FORCE, self.wrenches.append,
-                                        qos.STREAM)
+        if wrenches:
+            self.subscribe_wrenches()
         self.client.create_subscription(ForceBlock, names.FORCE_BLOCK, self.blocks.append,
                                         qos.STREAM)
         self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
                                         self.diagnostics.append, 10)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
+
+    def subscribe_wrenches(self):
+        self.client.create_subscription(WrenchStamped, names.FORCE, self.wrenches.append,
+                                        qos.STREAM)
 
     def start(self, server, **overrides):
         params = dict(sensor_host='127.0.0.1', sensor_port=server.port,
@@ -144,6 +148,34 @@ def test_blocks_carry_every_published_sample_once_with_its_stamp_and_force(harne
     assert sum(len(b.stamp) == 7 for b in harness.blocks) >= len(harness.blocks) - 3
     assert all(b.header.frame_id == names.SENSOR_FRAME
                and stamp_to_seconds(b.header.stamp) == b.stamp[-1] for b in harness.blocks)
+
+
+def test_no_wrench_is_built_while_nobody_subscribes_and_the_blocks_carry_every_sample(
+        ros_context, monkeypatch):
+    import wind_shaper.nodes.force_sensor as force_sensor_module
+
+    built = []
+
+    class CountedWrench(WrenchStamped):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            built.append(1)
+    monkeypatch.setattr(force_sensor_module, 'WrenchStamped', CountedWrench)
+    harness = Harness(ros_context, wrenches=False)
+    try:
+        with SimNetFtServer(source, rate_hz=500.0) as server:
+            node = harness.start(server, block_samples=10)
+            assert wait_for(lambda: sum(len(b.stamp) for b in harness.blocks) >= 300), \
+                sum(len(b.stamp) for b in harness.blocks)
+            assert built == [] and len(harness.wrenches) == 0
+            harness.subscribe_wrenches()              # a subscriber comes: the wrenches follow
+            assert wait_for(lambda: len(harness.wrenches) >= 50), len(harness.wrenches)
+            assert len(built) >= 50
+            node.trigger_deactivate()
+        assert wait_for(lambda: int(harness.fresh_diag()['published'])
+                        == sum(len(b.stamp) for b in harness.blocks), 3.0)
+    finally:
+        harness.close()
 
 
 @pytest.mark.fault

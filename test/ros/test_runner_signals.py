@@ -45,3 +45,43 @@ def test_the_stop_handler_survives_a_signal_inside_itself():
     except subprocess.TimeoutExpired:
         pytest.fail('the signal handler deadlocked when re-entered (it takes a lock)')
     assert done.returncode == 0 and 'handled True' in done.stdout, done.stderr
+
+
+# A node run by the runner: it prints a line once spinning, then waits for signals.
+IDLE_NODE = '''
+from rclpy.node import Node
+from wind_shaper.ros import runner
+
+class Idle(Node):
+    def __init__(self):
+        super().__init__('runner_signal_test')
+        self.create_timer(0.1, self.once)
+        self._said = False
+
+    def once(self):
+        if not self._said:
+            print('spinning', flush=True)
+            self._said = True
+
+raise SystemExit(runner.run(Idle))
+'''
+
+
+def test_sigusr1_prints_where_every_thread_of_a_running_node_waits(ros_env):
+    """A node alive but not answering: `kill -USR1` shows where it waits, and it runs on."""
+    import signal
+    import time
+    node = subprocess.Popen([sys.executable, '-c', IDLE_NODE], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=ros_env)
+    try:
+        assert node.stdout.readline().strip() == 'spinning'
+        node.send_signal(signal.SIGUSR1)
+        time.sleep(0.5)
+        assert node.poll() is None, 'SIGUSR1 ended the node'
+        node.send_signal(signal.SIGTERM)
+        _, err = node.communicate(timeout=20)
+    finally:
+        if node.poll() is None:
+            node.kill()
+    assert node.returncode == 0, err
+    assert 'Current thread' in err and 'spin_until_future_complete' in err, err

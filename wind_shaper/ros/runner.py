@@ -23,6 +23,7 @@ blocked forever in the middle layer) stops beating, and the supervisor restarts 
 """
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 
@@ -55,6 +56,9 @@ def run(node_cls, args=None, *, executor: str = 'single') -> int:
     """Run ``node_cls`` in this process; ``executor`` is 'single' or 'events'."""
     if executor not in ('single', 'events'):
         raise ValueError(f"executor must be 'single' or 'events', not {executor!r}")
+    # `kill -USR1 <pid>` prints every thread's Python stack to stderr (the supervisor shows it
+    # as the node's lines): where a node that is alive but does not answer is waiting
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     _stop.requested = False
     signal.signal(signal.SIGINT, _request_stop)

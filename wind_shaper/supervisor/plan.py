@@ -137,9 +137,10 @@ def graph_env(base: Mapping[str, str] | None = None) -> dict[str, str]:
 
     Why UDP: the supervisor restarts a node killed or hung in the middle of a stream, and Fast
     DDS's shared-memory transport does not always recover from a participant killed while it
-    used a port: the restarted node matched every endpoint and received nothing, for minutes,
-    while its heartbeat went on (eProsima's Fast-DDS tracker has reports of the same, e.g. GitHub
-    5053 and 5469). Loopback UDP carries the graph's few hundred small messages a second easily."""
+    used a port (a relay restarted on it once blocked forever publishing, in the transport's
+    port code; eProsima's Fast-DDS tracker has reports of restarted subscribers that receive
+    nothing, e.g. GitHub 5053 and 5469). Loopback UDP carries the graph's few hundred small
+    messages a second easily."""
     env = dict(os.environ if base is None else base)
     env['PYTHONUNBUFFERED'] = '1'
     if not any(env.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_LOCALHOST_ONLY',
