@@ -371,8 +371,9 @@ def main(args=None) -> int:
     # Single-threaded, not rclpy's experimental events executor: in a loop of 33 restarts
     # mid-sweep under load, one restarted estimator on it never answered a call again (not
     # diagnosed; another such failure was mocap_relay blocked in Fast DDS, which `wind-shaper
-    # up --hang-after` now catches). Single-threaded on the force blocks: 0 of 46. The force
-    # comes in blocks, so the stream costs tens of callbacks a second here, not a thousand.
+    # up --hang-after` now catches). Single-threaded on the force blocks: 0 of 46, but later
+    # 3 of 50 with both cores busy (bench/kill_loop.py; docs/graph.md), so the executor is not
+    # shown to be the cause. The force comes in blocks: tens of callbacks a second, not a thousand.
     return run(FieldEstimatorNode, args)
 
 
