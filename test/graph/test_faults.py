@@ -29,6 +29,9 @@ SWEEP_S = 3.0
 #: --hang-after of the graph: a node whose executor has not run this long is killed and restarted
 #: (long enough that a loaded CI machine does not starve a healthy node that long)
 HANG_AFTER_S = 8.0
+#: --deaf-after of the graph: a node that has answered no call for this long is killed and
+#: restarted (a restarted field_estimator was seen, rarely, to come back deaf)
+DEAF_AFTER_S = 20.0
 
 
 class Rig:
@@ -37,7 +40,7 @@ class Rig:
     def __init__(self, env, root: Path):
         self.env, self.root = env, root
         self.up = Up(env, root, '--run-name', RUN, '--startup-timeout', '60',
-                     '--hang-after', str(HANG_AFTER_S),
+                     '--hang-after', str(HANG_AFTER_S), '--deaf-after', str(DEAF_AFTER_S),
                      '--set', f'coordinator.sweep_duration_s={SWEEP_S}',
                      '--set', 'coordinator.settle_s=0.3',
                      # a stalled host loses poses and leaves holes; more sweeps fill them

@@ -380,3 +380,36 @@ def test_the_graph_comes_up_in_stages(script, supervisors):
     assert set(sup.pids()) == {'rig', 'driver'}
     with pytest.raises(GraphError, match='no node'):
         sup.start(['nope'])
+
+
+def test_a_deaf_node_is_killed_and_restarted_and_one_that_answers_is_left_alone(script,
+                                                                               supervisors):
+    """The probe (here a stand-in: 'talks' always answers, 'deaf' never) decides, not the
+    heartbeat (off here); nobody is judged before deaf_after_s."""
+    sup = supervisors([script('talks', RUNS), script('deaf', RUNS)],
+                      policy=RestartPolicy(backoff_s=0.05, max_backoff_s=0.2, deaf_after_s=1.0))
+    asked = []
+
+    def probe(names):
+        asked.append(list(names))
+        return {'talks': sup.clock()}
+    sup.watch_answers(probe)
+    sup.start()
+    talking, deaf = sup.pids()['talks'], sup.pids()['deaf']
+    sup.poll()
+    assert 'deaf' not in sup.out.getvalue().replace('node deaf', '')   # not before 1 s
+    t0 = time.monotonic()
+    sup.supervise(lambda: len(sup.all_pids()) >= 3 or time.monotonic() - t0 > 10, interval_s=0.02)
+    out = sup.out.getvalue()
+    assert len(sup.all_pids()) == 3 and gone(deaf), out
+    assert 'node deaf (pid' in out and 'answered no call for 1 s (since it started' in out, out
+    assert 'restarting deaf (1 of 3)' in out and sup.pids()['talks'] == talking, out
+    assert ['talks', 'deaf'] in asked
+
+
+def test_without_deaf_after_the_probe_is_not_asked(script, supervisors):
+    sup = supervisors([script('quiet', RUNS)], policy=QUICK)
+    sup.watch_answers(lambda names: pytest.fail('asked without deaf_after_s'))
+    sup.start()
+    sup.supervise(lambda: sup.clock() - sup._children['quiet'].started_at > 0.5, interval_s=0.02)
+    assert len(sup.all_pids()) == 1

@@ -77,6 +77,10 @@ def register(subparsers) -> None:
     p.add_argument('--hang-after', type=float, default=20.0, metavar='S',
                    help='restart a node whose executor has not run for this long: hung (default '
                         '20 s; 0 = never) [s]')
+    p.add_argument('--deaf-after', type=float, default=30.0, metavar='S',
+                   help='restart a node that is running but has answered no call for this long: '
+                        'deaf to the graph (default 30 s; 0 = never; up asks each node every '
+                        '3 s) [s]')
     p.add_argument('--startup-timeout', type=_positive, default=60.0, metavar='S',
                    help='longest wait for every node to appear in the graph [s] (default 60)')
     p.add_argument('--iteration-timeout', type=_positive, default=600.0, metavar='S',
@@ -130,6 +134,38 @@ class _GraphClient:
         self.node = rclpy.create_node('wind_shaper_up', context=self.context, namespace=namespace)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        #: node -> (client, pending call or None, when it was sent, when it last answered)
+        self._probes: dict = {}
+
+    #: a node is asked again when its last probe call is this old without an answer [s]
+    PROBE_EVERY_S = 3.0
+
+    def answers(self, nodes) -> dict:
+        """The supervisor's probe of deafness: each node in ``nodes`` is asked for none of its
+        parameters (its parameter service, which every rclpy node serves from its executor)
+        every ``PROBE_EVERY_S`` s; returns {node: time.monotonic() of its last answer}. A call
+        must cross from this process to the node's, as the coordinator's calls do."""
+        from rcl_interfaces.srv import GetParameters
+        now = time.monotonic()
+        probes = self._probes
+        for name in nodes:
+            client, future, sent, last = probes.get(name, (None, None, 0.0, None))
+            if client is None:
+                service = f'{self.namespace.rstrip("/")}/{name}/get_parameters'
+                client = self.node.create_client(GetParameters, service)
+            if future is not None and future.done():
+                if not future.cancelled() and future.exception() is None:
+                    last = now
+                future = None
+            if (future is None or now - sent >= self.PROBE_EVERY_S) and client.service_is_ready():
+                # (a call sent before the service is matched would be lost, not late)
+                if future is not None:      # unanswered: ask again (a restarted node is new)
+                    client.remove_pending_request(future)
+                future, sent = client.call_async(GetParameters.Request(names=[])), now
+            probes[name] = (client, future, sent, last)
+        for _ in range(2 * len(nodes)):     # take the answers that have arrived
+            self.executor.spin_once(timeout_sec=0.0)
+        return {n: probes[n][3] for n in nodes if probes[n][3] is not None}
 
     def visible(self) -> list[str]:
         """The nodes in the graph's namespace (another tunnel's nodes of the same names in the
@@ -248,8 +284,13 @@ def _cmd_up(args) -> int:
         print(f'wind-shaper up: --hang-after must be 0 (never) or a number of seconds, not '
               f'{args.hang_after:g}', file=sys.stderr)
         return 2
+    if args.deaf_after < 0:
+        print(f'wind-shaper up: --deaf-after must be 0 (never) or a number of seconds, not '
+              f'{args.deaf_after:g}', file=sys.stderr)
+        return 2
     policy = RestartPolicy(enabled=not args.no_restart, max_restarts=max(0, args.max_restarts),
-                           hang_after_s=args.hang_after if not args.no_restart else 0.0)
+                           hang_after_s=args.hang_after if not args.no_restart else 0.0,
+                           deaf_after_s=args.deaf_after if not args.no_restart else 0.0)
     sup = Supervisor(specs, env=env, policy=policy, log_dir=args.log_dir, grace_s=args.grace)
     code = 0
     client = None
@@ -268,6 +309,7 @@ def _cmd_up(args) -> int:
             sup.wait_visible(client.visible, max(1.0, args.startup_timeout - (time.monotonic() - t0)),
                              should_stop=stop)
             took = time.monotonic() - t0
+            sup.watch_answers(client.answers)
             pids = ', '.join(f'{n} {pid}' for n, pid in sup.pids().items())
             sup.say(f'wind-shaper up: all {len(nodes)} nodes are up in {took:.1f} s (pids: {pids}).')
             if args.iterations is None:

@@ -19,6 +19,11 @@ runs (``core.heartbeat``, called by ``wind_shaper.ros.runner``), and one whose h
 older than ``RestartPolicy.hang_after_s`` is killed (SIGKILL) and so restarted. (Seen: a node whose
 publish blocked forever in Fast DDS's shared-memory transport after the subscriber it was
 sending to had been killed; its stream was gone for good until the node was restarted.)
+A child can also be alive, beating, and deaf: its executor waits and no call from another
+process reaches it (seen, rarely, for a field_estimator restarted mid-sweep). With
+``RestartPolicy.deaf_after_s`` and a probe (``Supervisor.watch_answers``: another process calls
+each node, e.g. its parameter service, and reports when it last answered), a node that has not
+answered for that long is killed and restarted the same way.
 ``shutdown()`` sends SIGINT to every child, waits ``grace_s``, then SIGKILLs what is left.
 """
 from __future__ import annotations
@@ -64,7 +69,9 @@ class RestartPolicy:
     ``reset_after_s`` [s] since its last start has its count reset (a crash a day is not a
     crash loop); a node whose heartbeat is older than ``hang_after_s`` [s] is hung and is
     killed, so that it is restarted like one that died (0: never; it must exceed the longest
-    callback a node runs, an estimate of a large wall takes seconds)."""
+    callback a node runs, an estimate of a large wall takes seconds); a node that has answered
+    no probe call for ``deaf_after_s`` [s] since its start or its last answer is deaf and is
+    killed likewise (0: never; it needs a probe, ``Supervisor.watch_answers``)."""
 
     enabled: bool = True
     max_restarts: int = 3
@@ -72,10 +79,11 @@ class RestartPolicy:
     max_backoff_s: float = 10.0
     reset_after_s: float = 300.0
     hang_after_s: float = 0.0
+    deaf_after_s: float = 0.0
 
     def __post_init__(self):
         if (self.max_restarts < 0 or self.backoff_s < 0 or self.max_backoff_s < 0
-                or self.hang_after_s < 0):
+                or self.hang_after_s < 0 or self.deaf_after_s < 0):
             raise ValueError(f'restart policy values must be >= 0; got {self}')
 
     def delay(self, restarts_so_far: int) -> float:
@@ -111,6 +119,7 @@ class _Child:
     exit_code: int | None = None
     gave_up: bool = False
     hung: bool = False
+    deaf: bool = False
     pids: list = field(default_factory=list)
 
 
@@ -144,6 +153,13 @@ class Supervisor:
         self._stopping = False
         self._beats = (Path(tempfile.mkdtemp(prefix='wind_shaper_up_')) if policy.hang_after_s > 0
                        else None)
+        self._probe: Callable[[Sequence[str]], Mapping[str, float]] | None = None
+
+    def watch_answers(self, probe: Callable[[Sequence[str]], Mapping[str, float]]) -> None:
+        """Judge deafness (``RestartPolicy.deaf_after_s``) by ``probe(names)``: called every poll
+        with the nodes running now, it sends them its calls as it sees fit and returns {node:
+        the ``clock()`` time of its last answer} (a node never answered may be left out)."""
+        self._probe = probe
 
     # ------------------------------------------------------------------ output
     def say(self, text: str) -> None:
@@ -197,7 +213,7 @@ class Supervisor:
             raise GraphError(f'cannot start node {spec.name} ({" ".join(spec.argv[:3])}...): '
                              f'{exc}') from None
         child.process, child.exit_code, child.restart_at = process, None, None
-        child.hung = False
+        child.hung = child.deaf = False
         child.started_at = self.clock()
         child.pids.append(process.pid)
         child.reader = threading.Thread(target=self._pump, args=(child, process.stdout, log),
@@ -276,6 +292,7 @@ class Supervisor:
         """Report children that died and restart them when due (call from the main thread every
         ~0.1 s). Raises NodeGaveUp when a node will not be restarted."""
         now = self.clock()
+        answered = self._answers(now)
         for name, child in self._children.items():
             if child.gave_up or child.process is None:
                 continue
@@ -290,6 +307,7 @@ class Supervisor:
             code = child.process.poll()
             if code is None:
                 self._kill_if_hung(name, child, now)
+                self._kill_if_deaf(name, child, now, answered)
                 continue
             if child.exit_code is not None:
                 continue
@@ -301,6 +319,9 @@ class Supervisor:
             if child.hung:
                 report = (f'wind-shaper up: node {name} (pid {child.process.pid}) was killed: '
                           f'hung (no heartbeat for {self.policy.hang_after_s:g} s)')
+            elif child.deaf:
+                report = (f'wind-shaper up: node {name} (pid {child.process.pid}) was killed: '
+                          f'deaf (no answer for {self.policy.deaf_after_s:g} s)')
             if code == CONFIG_ERROR_EXIT:
                 reason = 'it reported a configuration error: fix it and start again'
             elif not self.policy.enabled:
@@ -333,6 +354,34 @@ class Supervisor:
                  f'executor for {age:.0f} s (no heartbeat; --hang-after {hang_after:g} s): it is '
                  f'hung; killing it so that it is restarted; its last lines:\n'
                  f'{self._tail_text(name)}')
+        try:
+            child.process.kill()
+        except ProcessLookupError:
+            pass
+
+    def _answers(self, now: float) -> Mapping[str, float]:
+        """The probe's last answer per running node ({} without a probe or deaf_after_s)."""
+        if self._probe is None or self.policy.deaf_after_s <= 0 or self._stopping:
+            return {}
+        running = [n for n, c in self._children.items() if c.process is not None
+                   and c.restart_at is None and not c.gave_up and c.process.poll() is None]
+        return self._probe(running) if running else {}
+
+    def _kill_if_deaf(self, name: str, child: _Child, now: float, answered: Mapping[str, float]) -> None:
+        """SIGKILL a running child that has answered no probe call for ``deaf_after_s`` since its
+        start or its last answer; the next poll restarts it."""
+        deaf_after = self.policy.deaf_after_s
+        if self._probe is None or deaf_after <= 0 or child.hung or child.deaf:
+            return
+        last = max(answered.get(name, float('-inf')), child.started_at)
+        if now - last < deaf_after:
+            return
+        child.deaf = True
+        since = 'since it started' if last == child.started_at else 'since its last answer'
+        self.say(f'wind-shaper up: node {name} (pid {child.process.pid}) is running but has '
+                 f'answered no call for {now - last:.0f} s ({since}; --deaf-after '
+                 f'{deaf_after:g} s): it is deaf to the graph; killing it so that it is '
+                 f'restarted; its last lines:\n{self._tail_text(name)}')
         try:
             child.process.kill()
         except ProcessLookupError:
