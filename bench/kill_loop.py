@@ -47,10 +47,10 @@ def _cli(root: Path, env: dict, *args: str, timeout_s: float = 200) -> subproces
 
 
 class Loop:
-    def __init__(self, root: Path, env: dict):
-        self.root, self.env = root, env
+    def __init__(self, root: Path, env: dict, deaf_after: float = 30.0):
+        self.root, self.env, self.deaf_after = root, env, deaf_after
         self.up = Up(env, root, '--run-name', 'kill_loop', '--startup-timeout', '60',
-                     '--hang-after', '8', '--max-restarts', '100000',
+                     '--hang-after', '8', '--deaf-after', str(deaf_after), '--max-restarts', '100000',
                      '--set', f'coordinator.sweep_duration_s={SWEEP_S}',
                      '--set', 'coordinator.settle_s=0.3', '--set', 'coordinator.max_sweeps=5')
         self.pids = node_pids(self.up.wait_line(UP_LINE.pattern, 90))
@@ -98,6 +98,18 @@ class Loop:
         row = {'node': node, 'sweep_started': started, 'restarted': m is not None,
                'iterate': call.returncode, 'field_query': query.returncode}
         row['ok'] = started and m is not None and call.returncode == 0 and query.returncode == 0
+        if not row['ok'] and self.deaf_after > 0:
+            # the supervisor restarts a node that answers nothing for --deaf-after: does the
+            # graph answer again once that has had its time?
+            deadline = time.monotonic() + self.deaf_after + 30
+            while time.monotonic() < deadline:
+                later = subprocess.run([sys.executable, '-m', 'wind_shaper.cli.main', 'field', '--wait',
+                                        '5', '--at=0,0'], cwd=self.root, env=self.env,
+                                       capture_output=True, text=True, timeout=60)
+                if later.returncode == 0:
+                    break
+            row['answers_later'] = later.returncode == 0
+            row['deaf_restarted'] = any('deaf to the graph' in line for line in self.new_lines())
         if not row['ok']:
             # where is each node waiting? (the nodes print their threads' stacks on SIGUSR1)
             for pid in list(self.pids.values()):
@@ -122,6 +134,9 @@ def main(argv=None) -> int:
                     help='nodes killed in turn (comma-separated)')
     ap.add_argument('--load', type=int, default=0, help='busy processes run beside the graph')
     ap.add_argument('--domain', default=str(os.getpid() % 90 + 10), help='ROS_DOMAIN_ID')
+    ap.add_argument('--deaf-after', type=float, default=30.0,
+                    help="the graph's --deaf-after [s] (0: off); a cycle that failed then counts "
+                         "whether the graph answered again within that time + 30 s")
     ap.add_argument('--json', type=Path, default=None)
     args = ap.parse_args(argv)
     nodes = [n for n in args.nodes.split(',') if n]
@@ -130,7 +145,7 @@ def main(argv=None) -> int:
     burners = [multiprocessing.Process(target=_burn, daemon=True) for _ in range(args.load)]
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix='kill_loop') as tmp:
-        loop = Loop(Path(tmp), env)
+        loop = Loop(Path(tmp), env, args.deaf_after)
         try:
             code, out = loop.iterate()
             if code != 0:
@@ -143,13 +158,16 @@ def main(argv=None) -> int:
                     # the supervisor's restart backoff doubles per node (1, 2, 4, 8 s, reset
                     # after 300 s of running): a fifth kill within minutes would measure it
                     loop.up.kill()
-                    loop = Loop(Path(tmp), env)
+                    loop = Loop(Path(tmp), env, args.deaf_after)
                 row = loop.cycle(nodes[i % len(nodes)])
                 rows.append(row)
                 print(f"cycle {i}: {row['node']} killed: "
                       f"{'recovered' if row['ok'] else 'NOT recovered'} (iterate exit "
                       f"{row['iterate']}, field query exit {row['field_query']})", flush=True)
                 if not row['ok']:
+                    if 'answers_later' in row:
+                        print(f"    restarted as deaf: {row['deaf_restarted']}; the graph answered "
+                              f"again within --deaf-after + 30 s: {row['answers_later']}", flush=True)
                     print('\n'.join('    ' + line for line in row['lines']), flush=True)
                     print('\n'.join('    ' + line for line in row['stacks']), flush=True)
         finally:
@@ -161,6 +179,11 @@ def main(argv=None) -> int:
         mine = [r for r in rows if r['node'] == node]
         print(f"{node}: {sum(r['ok'] for r in mine)} of {len(mine)} kills recovered")
     print(f'{len(rows) - failed} of {len(rows)} cycles recovered (load: {args.load} busy processes)')
+    later = [r for r in rows if not r['ok'] and 'answers_later' in r]
+    if later:
+        print(f"of the {len(later)} that did not: {sum(r['deaf_restarted'] for r in later)} restarted "
+              f"as deaf, {sum(r['answers_later'] for r in later)} answered again within "
+              f"--deaf-after + 30 s")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({'load': args.load, 'rows': rows}, indent=1) + '\n')
