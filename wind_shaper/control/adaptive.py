@@ -82,7 +82,9 @@ class AdaptiveUpdate:
     strongly correlated; None: every key point counts); relearn: learn again from the newest
     map when it contradicts the earlier ones (``chain``); pool_within [PWM fraction]: the maps
     whose commands all lie within this of the base's are averaged into the base's residual (see
-    ``_pooled_residual``); 0 uses the base's map alone.
+    ``_pooled_residual``); 0 uses the base's map alone; gain_common_sd [-]: the sd of a gain
+    deviation all fans share in the per-fan fit (``ShapeFit``; 0: none), so a fan idle in every
+    map so far moves with the others' correction.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -109,6 +111,7 @@ class AdaptiveUpdate:
     fit_points: float | None = 20.0
     relearn: bool = True
     pool_within: float = 0.05
+    gain_common_sd: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -126,6 +129,9 @@ class AdaptiveUpdate:
                 and self.fit_from >= 1):
             raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
                               'fit_from >= 1')
+        if not 0 <= self.gain_common_sd <= 1:
+            raise ConfigError(f'gain_common_sd must be in [0, 1] (a share of the gain), got '
+                              f'{self.gain_common_sd}')
         if not 0 <= self.pool_within <= 1:
             raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
 
@@ -216,7 +222,8 @@ class AdaptiveUpdate:
             mode = 'gain' if fitted else 'prior'
         elif basis is not None:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
-                           swirl=self.swirl and not basis.sparse, noise_std=self.noise_std)
+                           swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
+                           gain_common_sd=self.gain_common_sd)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)

@@ -34,6 +34,12 @@ class ShapeFit:
     with the standard deviations below; the maps' noise is ``noise_std`` [N] per key point.
     bases: which of ('gain', 'x', 'y', 'width') to fit.
 
+    gain_common_sd [-]: with it > 0 the gains are 1 + common + own_j, a deviation every enabled
+    fan shares (a sagging supply, a starved inlet, air density, the sensor's scale) with sd
+    gain_common_sd beside each fan's own with sd gain_sd; a fan that no map has seen running
+    then moves with the others instead of staying at the prior. 0: independent gains. Dense
+    priors only (a large wall's sparse fit keeps independent gains).
+
     swirl: also fit one global term, the whole field turning about the tunnel axis by
     phi(U) = swirl_gain * sum_j s_j a_j(U_j) / sum_j a_j(U_j) [rad] (s_j = +1 for CCW fans, -1
     for CW), the residual swirl the honeycomb leaves when CW and CCW thrusts are unbalanced
@@ -48,6 +54,7 @@ class ShapeFit:
     offset_sd: float = 0.5
     swirl_sd: float = 0.5
     noise_std: float = 0.1
+    gain_common_sd: float = 0.0
 
     def prior(self, n: int):
         mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
@@ -119,6 +126,12 @@ class ShapeFit:
             b += hit[1]
         A += np.diag((self.noise_std / std) ** 2)
         keep = ~frozen
+        if self.gain_common_sd > 0 and 'gain' in self.bases:
+            # the gains' prior covariance gain_sd^2 I + gain_common_sd^2 1 1^T over the enabled
+            # fans; its inverse (Sherman-Morrison) replaces their diagonal precision
+            g = 1 + self.bases.index('gain') * n + np.flatnonzero(~frozen[1:1 + n])
+            m, sd2, c2 = len(g), self.gain_sd ** 2, self.gain_common_sd ** 2
+            A[np.ix_(g, g)] -= self.noise_std ** 2 * c2 / (sd2 * (sd2 + m * c2))
         theta = mean.copy()
         theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
         return theta

@@ -61,3 +61,27 @@ def test_a_nearly_flat_fan_is_not_thrown_to_full_pwm(rng):
     assert abs(safe.raw_step[2]) < 1.0
     naive = PaperUpdate(rcond=1e-15).step(UpdateInput(0, U, delta, J, np.ones(3, bool)))
     assert abs(naive.raw_step[2]) > 100  # what the cut-off prevents
+
+
+def test_a_shared_gain_prior_moves_a_fan_no_map_has_seen_running_with_the_others():
+    """Every fan 20 % weaker than the prior, a map where the central fan is off: with independent
+    gains its correction stays at the prior (1.0); with a shared part it follows the others, and
+    the fit of the fans that ran is not worse."""
+    from wind_shaper.control.basis import FanBasis
+    from wind_shaper.control.shape_fit import ShapeFit
+    from wind_shaper.app import Setup
+    setup = Setup.load()
+    model, Z = setup.load_model(), setup.geometry.key_points
+    basis = FanBasis.from_term(model, Z)
+    n = model.n_fans
+    U = np.full(n, 0.5)
+    U[-1] = 0.0                                   # the central fan idle in the only map
+    a, _ = basis.thrust(U)
+    F = basis.offset + 0.8 * (basis.shape @ a)    # the truth: every gain 0.8
+    on = np.ones(n, bool)
+    w = np.ones(len(Z))
+    alone = ShapeFit(bases=('gain',), swirl=False, noise_std=0.1).fit(basis, [(U, F, w)], on)
+    shared = ShapeFit(bases=('gain',), swirl=False, noise_std=0.1, gain_common_sd=0.3).fit(basis, [(U, F, w)], on)
+    assert alone[n] == pytest.approx(1.0, abs=1e-6)          # the idle fan: the prior's gain
+    assert shared[n] < 0.9                                    # follows the others' 0.8
+    assert np.allclose(shared[1:n], 0.8, atol=0.03) and np.allclose(alone[1:n], 0.8, atol=0.03)
