@@ -292,7 +292,7 @@ class Supervisor:
         """Report children that died and restart them when due (call from the main thread every
         ~0.1 s). Raises NodeGaveUp when a node will not be restarted."""
         now = self.clock()
-        answered = self._answers(now)
+        answered = self._answers()
         for name, child in self._children.items():
             if child.gave_up or child.process is None:
                 continue
@@ -359,7 +359,7 @@ class Supervisor:
         except ProcessLookupError:
             pass
 
-    def _answers(self, now: float) -> Mapping[str, float]:
+    def _answers(self) -> Mapping[str, float]:
         """The probe's last answer per running node ({} without a probe or deaf_after_s)."""
         if self._probe is None or self.policy.deaf_after_s <= 0 or self._stopping:
             return {}
