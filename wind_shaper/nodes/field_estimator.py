@@ -373,7 +373,8 @@ def main(args=None) -> int:
     # diagnosed; another such failure was mocap_relay blocked in Fast DDS, which `wind-shaper
     # up --hang-after` now catches). Single-threaded on the force blocks: 0 of 46, but later
     # 3 of 50 with both cores busy (bench/kill_loop.py; docs/graph.md), so the executor is not
-    # shown to be the cause. The force comes in blocks: tens of callbacks a second, not a thousand.
+    # shown to be the cause; `wind-shaper up --deaf-after` restarts such a node. The force comes
+    # in blocks: tens of callbacks a second, not a thousand.
     return run(FieldEstimatorNode, args)
 
 

@@ -350,14 +350,8 @@ class Supervisor:
         if age < hang_after:
             return
         child.hung = True
-        self.say(f'wind-shaper up: node {name} (pid {child.process.pid}) has not run its '
-                 f'executor for {age:.0f} s (no heartbeat; --hang-after {hang_after:g} s): it is '
-                 f'hung; killing it so that it is restarted; its last lines:\n'
-                 f'{self._tail_text(name)}')
-        try:
-            child.process.kill()
-        except ProcessLookupError:
-            pass
+        self._kill_to_restart(name, child, f'has not run its executor for {age:.0f} s (no '
+                              f'heartbeat; --hang-after {hang_after:g} s): it is hung')
 
     def _answers(self) -> Mapping[str, float]:
         """The probe's last answer per running node ({} without a probe or deaf_after_s)."""
@@ -378,10 +372,15 @@ class Supervisor:
             return
         child.deaf = True
         since = 'since it started' if last == child.started_at else 'since its last answer'
-        self.say(f'wind-shaper up: node {name} (pid {child.process.pid}) is running but has '
-                 f'answered no call for {now - last:.0f} s ({since}; --deaf-after '
-                 f'{deaf_after:g} s): it is deaf to the graph; killing it so that it is '
-                 f'restarted; its last lines:\n{self._tail_text(name)}')
+        self._kill_to_restart(name, child, f'is running but has answered no call for '
+                              f'{now - last:.0f} s ({since}; --deaf-after {deaf_after:g} s): it '
+                              f'is deaf to the graph')
+
+    def _kill_to_restart(self, name: str, child: _Child, why: str) -> None:
+        """Say why a running child is killed, with its last lines, and SIGKILL it; the next poll
+        restarts it like a node that died."""
+        self.say(f'wind-shaper up: node {name} (pid {child.process.pid}) {why}; killing it so '
+                 f'that it is restarted; its last lines:\n{self._tail_text(name)}')
         try:
             child.process.kill()
         except ProcessLookupError:
