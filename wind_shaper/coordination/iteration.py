@@ -268,10 +268,11 @@ class ShapingRun:
                            self.key_points, self.history[-1], U)
 
     def complete(self, k: int, U: np.ndarray, rule, answer: FieldAnswer, stamps: dict,
-                 region: dict | None = None) -> IterationData:
+                 region: dict | None = None, sweeps: int = 1) -> IterationData:
         """The update rule's step from the measured field, bounded; written to the run folder
         before the run advances to k + 1 (so a crash leaves either the old or the new state).
-        region: the region sweep's record (``control.region.region_record``), if it was one."""
+        region: the region sweep's record (``control.region.region_record``), if it was one;
+        sweeps: how many sweeps the estimate took (a refused sweep is swept again)."""
         kp = np.asarray(answer.key_points, dtype=float)
         if kp.shape != self.key_points.shape or not np.allclose(kp, self.key_points, atol=1e-9):
             raise IterationStopped(FAILED, f'the field estimator used {len(kp)} other key points '
@@ -312,7 +313,8 @@ class ShapingRun:
             estimate=estimate, target_values=target_values, sweep=sweep, model=repr(model),
             timestamps=stamps, info={'gain': getattr(rule, 'gain', None),
                                      'estimator_compute_s': float(answer.compute_s),
-                                     **tunnel_time(stamps), **dict(step.info), **warm_info,
+                                     **tunnel_time(stamps), 'sweeps': int(sweeps),
+                                     **dict(step.info), **warm_info,
                                      **({'region': region} if region else {})})
         self.last_record_folder = self.store.write_iteration(data)
         self.warm = None
@@ -407,7 +409,8 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
 
     # 4. updating
     ports.set_state(UPDATING, f'iteration {k}: updating the commands')
-    return await ports.compute(run.complete, k, U, rule, answer, stamps, region=region)
+    return await ports.compute(run.complete, k, U, rule, answer, stamps, region=region,
+                               sweeps=attempt)
 
 
 __all__ = ['IDLE', 'COMMANDING', 'SWEEPING', 'ESTIMATING', 'UPDATING', 'DONE', 'FAILED',

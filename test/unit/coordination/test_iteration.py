@@ -39,7 +39,7 @@ def test_an_iteration_goes_through_its_states_writes_the_run_and_advances(setup,
     # the first sweep is checked against the prediction, and the tunnel time is counted
     check = data.info['warm_start']['check']
     assert check['mismatch'] is False and check['rms_difference_N'] > 0
-    assert data.info['plate_s'] >= 0 and data.info['settle_s'] >= 0
+    assert data.info['plate_s'] >= 0 and data.info['settle_s'] >= 0 and data.info['sweeps'] == 1
     assert run.k == 1 and np.allclose(run.U, data.pwm_after) and np.allclose(run.command, run.U)
     assert run.last_rmse == pytest.approx(data.rmse)
     lo, hi = setup.shaping.u_min, setup.shaping.u_max
@@ -57,7 +57,7 @@ def test_a_refused_sweep_is_swept_again_and_pooled(setup, tmp_path):
     data = asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=3))
     assert ports.states.count(SWEEPING) == 2 and len(ports.warnings) == 1
     assert 'a gap of 9 cm' in ports.warnings[0] and '2 of 3' in ports.warnings[0]
-    assert len(data.sweep) == 2000 and run.k == 1
+    assert len(data.sweep) == 2000 and run.k == 1 and data.info['sweeps'] == 2
 
 
 def test_too_many_refusals_fail_and_nothing_advances(setup, tmp_path):
