@@ -109,4 +109,6 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     record = json.loads((tmp_path / 'runs' / 'short-sweep' / 'iterations' / 'k000' / 'record.json').read_text())
     sweeps = record['info']['sweeps']
     assert 1 <= sweeps <= 3 and (sweeps == 1) == ('sweeping again to fill the gaps' not in out), out[-5000:]
-    assert 3.0 <= record['info']['plate_s'] < 19.0 + 21.0 * (sweeps - 1), record['info']
+    # a sweep that ran in full takes its 20 s and more; one stopped early less (the stop's own
+    # latency included)
+    assert 3.0 <= record['info']['plate_s'] < 20.0 + 21.0 * (sweeps - 1), record['info']
