@@ -84,7 +84,9 @@ class AdaptiveUpdate:
     whose commands all lie within this of the base's are averaged into the base's residual (see
     ``_pooled_residual``); 0 uses the base's map alone; gain_common_sd [-]: the sd of a gain
     deviation all fans share in the per-fan fit (``ShapeFit``; 0: none), so a fan idle in every
-    map so far moves with the others' correction.
+    map so far moves with the others' correction; load_sd [1 per unit command]: the prior sd of
+    a shared slope of every fan's gain with the mean command (``ShapeFit``; 0: none), for a
+    starved inlet or a sagging supply.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -112,6 +114,7 @@ class AdaptiveUpdate:
     relearn: bool = True
     pool_within: float = 0.05
     gain_common_sd: float = 0.0
+    load_sd: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -132,6 +135,9 @@ class AdaptiveUpdate:
         if not 0 <= self.gain_common_sd <= 1:
             raise ConfigError(f'gain_common_sd must be in [0, 1] (a share of the gain), got '
                               f'{self.gain_common_sd}')
+        if not 0 <= self.load_sd <= 5:
+            raise ConfigError(f'load_sd must be in [0, 5] (gain change per unit of the mean '
+                              f'command), got {self.load_sd}')
         if not 0 <= self.pool_within <= 1:
             raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
 
@@ -206,6 +212,7 @@ class AdaptiveUpdate:
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
+        slope = 0.0   # the shared load slope of the gains (ShapeFit.load_sd), dense priors only
         if basis is not None and basis.sparse:
             # A large wall: per-fan gains only, on the Gram matrix of the footprints (cached per
             # run); no secant and no swirl term; the step is a bounded QP in thrust space.
@@ -223,7 +230,7 @@ class AdaptiveUpdate:
         elif basis is not None:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
-                           gain_common_sd=self.gain_common_sd)
+                           gain_common_sd=self.gain_common_sd, load_sd=self.load_sd)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
@@ -233,6 +240,8 @@ class AdaptiveUpdate:
                 theta = fit.prior(basis.n_fans)[0]
             Smat = fit.shape_matrix(basis, theta)
             g_swirl = fit.swirl_gain(theta)
+            slope = fit.load_slope(theta)
+            dload = np.where(on, 1.0 / max(1, int(on.sum())), 0.0)   # dL/dU
 
             def model(U):
                 a, da = basis.thrust(U)
@@ -243,6 +252,10 @@ class AdaptiveUpdate:
                     ra = basis.rot @ a
                     val = val + g_swirl * w * ra
                     jac = jac + g_swirl * (w * (basis.rot * da) + np.outer(ra, dw))
+                if slope:
+                    load, sa = fit.load(U, on), basis.shape @ a
+                    val = val + slope * load * sa
+                    jac = jac + slope * (load * (basis.shape * da) + np.outer(sa, dload))
                 return val, jac
             mode = 'shape' if fitted else 'prior'
         elif inp.model is not None and inp.key_points is not None:
@@ -342,7 +355,9 @@ class AdaptiveUpdate:
             # The corrected prior is linear in the per-fan thrusts a_j: solve the bounded
             # problem there exactly (a fan idling at PWM 0, where da/dU = 0, can come back),
             # then refine in PWM space, where the secant term lives.
-            U_t = _thrust_space_step(basis, Smat, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
+            # the load slope makes the model bilinear in the thrusts: held at the base's load here
+            S_step = Smat if not slope else Smat + slope * ShapeFit.load(U_b, on) * basis.shape
+            U_t = _thrust_space_step(basis, S_step, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
             pred_t, J_t = predict(U_t)
             f_t = objective(pred_t)
             if f_t < f_c:

@@ -21,6 +21,8 @@ from .basis import FanBasis
 
 #: What ``ShapeFit`` can fit per fan: its gain, the landing point (x, y) of its jet, its width.
 BASES = ('gain', 'x', 'y', 'width')
+#: The mean command [fraction] at which the shared load slope leaves the gains as they are.
+LOAD_REF = 0.3
 
 
 @dataclass(frozen=True)
@@ -40,6 +42,11 @@ class ShapeFit:
     then moves with the others instead of staying at the prior. 0: independent gains. Dense
     priors only (a large wall's sparse fit keeps independent gains).
 
+    load_sd [1 per unit command]: with it > 0 also fit one shared slope of the gains with the
+    load, every fan's footprint scaled by 1 + load_slope (L(U) - LOAD_REF) with L the mean
+    command of the enabled fans (a starved inlet or a sagging supply: each fan gives less the
+    harder all of them run); prior 0 +- load_sd. 0: no such term. Dense priors only.
+
     swirl: also fit one global term, the whole field turning about the tunnel axis by
     phi(U) = swirl_gain * sum_j s_j a_j(U_j) / sum_j a_j(U_j) [rad] (s_j = +1 for CCW fans, -1
     for CW), the residual swirl the honeycomb leaves when CW and CCW thrusts are unbalanced
@@ -55,14 +62,28 @@ class ShapeFit:
     swirl_sd: float = 0.5
     noise_std: float = 0.1
     gain_common_sd: float = 0.0
+    load_sd: float = 0.0
+
+    @property
+    def loaded(self) -> bool:
+        return self.load_sd > 0
 
     def prior(self, n: int):
         mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
-                              + [[0.0]] * self.swirl)
+                              + [[0.0]] * self.swirl + [[0.0]] * self.loaded)
         sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
         std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
-                             + [[self.swirl_sd]] * self.swirl)
+                             + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded)
         return mean, std
+
+    @staticmethod
+    def load(U, enabled) -> float:
+        """L(U) - LOAD_REF: the enabled fans' mean command [fraction] against the reference."""
+        on = np.asarray(enabled, bool)
+        return float(np.mean(np.asarray(U, float)[on])) - LOAD_REF if on.any() else 0.0
+
+    def load_slope(self, theta) -> float:
+        return float(theta[-1]) if self.loaded else 0.0
 
     @staticmethod
     def balance(basis: 'FanBasis', a, da=None):
@@ -77,7 +98,7 @@ class ShapeFit:
         return w, da * (basis.spin * total - net) / total ** 2
 
     def swirl_gain(self, theta) -> float:
-        return float(theta[-1]) if self.swirl else 0.0
+        return float(theta[-1 - self.loaded]) if self.swirl else 0.0
 
     def matrices(self, basis: FanBasis):
         table = {'gain': basis.shape, 'x': basis.dx, 'y': basis.dy, 'width': basis.dw}
@@ -89,7 +110,8 @@ class ShapeFit:
         mats = self.matrices(basis)
         mean, std = self.prior(n)
         P = len(mean)
-        frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats) + [[False]] * self.swirl)
+        frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats)
+                                + [[False]] * (self.swirl + self.loaded))
         if basis.sparse:
             blocks, rhs = [], []
             for U, F, w in maps:
@@ -114,12 +136,13 @@ class ShapeFit:
         if len(cache) > 64:
             cache.clear()
         for U, F, w in maps:
-            key = (self.bases, self.swirl, U.tobytes(), F.tobytes(), w.tobytes())
+            key = (self.bases, self.swirl, self.loaded, U.tobytes(), F.tobytes(), w.tobytes())
             hit = cache.get(key)
             if hit is None:
                 a, _ = basis.thrust(U)
                 X = np.column_stack([np.ones(len(F))] + [B * a for B in mats]
-                                    + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl)
+                                    + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl
+                                    + [self.load(U, enabled) * (basis.shape @ a)] * self.loaded)
                 Xw = X * w[:, None]
                 hit = cache[key] = (X.T @ Xw, Xw.T @ (F - basis.offset - X @ mean))
             A += hit[0]

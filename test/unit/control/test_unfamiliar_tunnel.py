@@ -49,7 +49,7 @@ def test_a_prior_with_the_wrong_optimum_does_not_trap_the_soaring_profile(harsh)
     setup, effects, prior, model_error = harsh
     kp, on, bounds = setup.geometry.key_points, setup.geometry.fans.enabled, setup.shaping.bounds
     target = setup.make_target('parabolic').values(kp)
-    sim = setup.make_sim(seed=3, effects=effects)
+    sim = setup.make_sim(seed=2, effects=effects)
     warm = warm_start(prior, kp, target, bounds, on, model_error=model_error)
     zeta = _best_error(sim, kp, target, on, bounds, [np.full(len(on), 0.5), warm.U])
     assert np.mean((sim.true_field(warm.U, kp) - target) ** 2) > 1.5 * zeta  # the trap is there
@@ -142,3 +142,31 @@ def test_the_restart_needs_the_prior_calibration_error():
     assert not near.restart and ws.next_commands(near, np.full(len(on), 0.3))[1] == {}
     unknown = warm_start(setup.load_model(), kp, target, b, on)   # no calibration error
     assert not unknown.compare(unknown.predicted + 0.8, std).restart
+
+
+def _loop(setup, sim, prior, target, model_error, **rule):
+    s = setup.shaping
+    return ShapingLoop(sim, prior, target, s.make_rule(**rule), s.make_estimator(), u0='warm',
+                       n_samples=s.samples_per_sweep, sweep_length=s.make_sweep_length(),
+                       fan_settle_s=s.fan_settle_s, model_error=model_error)
+
+
+def test_a_load_slope_learns_a_starved_inlet_in_two_steps():
+    """A shared inlet starves every fan the harder all of them run (U / (1 + c mean U)); the
+    per-fan gains fit one level for maps at different loads. With the load slope the second
+    update lands near the optimum (seeds 2-5: 1.003-1.007 x the best error after the second
+    update, 1.16 without)."""
+    setup = Setup.load()
+    effects = list(effects_from_config([{'name': 'plenum_starvation'}]))
+    fit = calibrate(setup.make_sim(seed=0, effects=effects), setup.geometry.fans)
+    kp, on, bounds = setup.geometry.key_points, setup.geometry.fans.enabled, setup.shaping.bounds
+    target = setup.make_target('parabolic').values(kp)
+    sim = setup.make_sim(seed=2, effects=effects)
+    zeta = _best_error(sim, kp, target, on, bounds, [np.full(len(on), 0.5)])
+    after = {}
+    for load_sd in (0.0, 0.5):
+        loop = _loop(setup, setup.make_sim(seed=2, effects=effects), fit.model, target, fit.rmse,
+                     load_sd=load_sd)
+        records = [loop.iterate(update=True) for _ in range(2)]
+        after[load_sd] = float(np.mean((sim.true_field(records[-1].next_pwm, kp) - target) ** 2)) / zeta
+    assert after[0.5] < 1.05 and after[0.5] < after[0.0], after

@@ -85,3 +85,38 @@ def test_a_shared_gain_prior_moves_a_fan_no_map_has_seen_running_with_the_others
     assert alone[n] == pytest.approx(1.0, abs=1e-6)          # the idle fan: the prior's gain
     assert shared[n] < 0.9                                    # follows the others' 0.8
     assert np.allclose(shared[1:n], 0.8, atol=0.03) and np.allclose(alone[1:n], 0.8, atol=0.03)
+
+
+def test_a_shared_load_slope_learns_that_every_fan_gives_less_the_harder_all_run():
+    """A starved inlet: every gain falls with the fans' mean command L (gain 1 - 0.6 (L - 0.3)).
+    Two maps at two loads: the load slope comes out near -0.6 and predicts a third load the
+    per-fan gains alone cannot (they fit one level of the gains for both maps)."""
+    from wind_shaper.control.basis import FanBasis
+    from wind_shaper.control.shape_fit import LOAD_REF, ShapeFit
+    from wind_shaper.app import Setup
+    setup = Setup.load()
+    model, Z = setup.load_model(), setup.geometry.key_points
+    basis = FanBasis.from_term(model, Z)
+    n = model.n_fans
+    on = np.ones(n, bool)
+    w = np.ones(len(Z))
+
+    def truth(U):
+        a, _ = basis.thrust(U)
+        return basis.offset + (1 - 0.6 * (np.mean(U) - LOAD_REF)) * (basis.shape @ a)
+
+    def predicted(fit, theta, U):
+        a, _ = basis.thrust(U)
+        return (basis.offset + theta[0] + fit.shape_matrix(basis, theta) @ a
+                + fit.load_slope(theta) * ShapeFit.load(U, on) * (basis.shape @ a))
+
+    maps = [(U, truth(U), w) for U in (np.full(n, 0.2), np.full(n, 0.6))]
+    loaded = ShapeFit(bases=('gain',), swirl=False, noise_std=0.05, load_sd=1.0)
+    plain = ShapeFit(bases=('gain',), swirl=False, noise_std=0.05)
+    theta_l, theta_p = loaded.fit(basis, maps, on), plain.fit(basis, maps, on)
+    assert loaded.load_slope(theta_l) == pytest.approx(-0.6, abs=0.1)
+    assert plain.load_slope(theta_p) == 0.0 and len(theta_p) == len(theta_l) - 1
+    U3 = np.full(n, 0.8)
+    err_l = np.sqrt(np.mean((predicted(loaded, theta_l, U3) - truth(U3)) ** 2))
+    err_p = np.sqrt(np.mean((predicted(plain, theta_p, U3) - truth(U3)) ** 2))
+    assert err_l < 0.3 * err_p, (err_l, err_p)
