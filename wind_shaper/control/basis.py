@@ -24,6 +24,11 @@ SPARSE_PAIRS = 2_000_000
 SPARSE_FANS = 64
 #: (fan, fan) pairs per block when per-fan thrust curves are read from the term.
 _PAIRS_PER_BLOCK = 1 << 21
+#: Commands at which a prior without a closed-form thrust curve is tabulated per fan (value and
+#: slope), between which ``FanBasis.thrust`` interpolates (cubic Hermite: exact at the nodes and
+#: for curves up to cubic; where a curve has a kink, an ESC's dead band, it is off by up to
+#: about its slope x the spacing / 8 within that one interval).
+_TABLE_POINTS = 501
 
 
 class FanBasis:
@@ -47,6 +52,7 @@ class FanBasis:
         self.peak_points = peak_points
         self.n_fans = term.n_fans
         self._thrust_cache = {}
+        self._table = None   # (values, slopes), each (_TABLE_POINTS, n), once asked for
         self._poly = poly  # (coefficients (n, 3), G_j(z*_j) (n,)) of the paper's prior, or None
 
     @property
@@ -162,18 +168,48 @@ class FanBasis:
             c, scale = self._poly
             P = c[:, 0] + U * (c[:, 1] + U * c[:, 2])
             return (P - c[:, 0]) * scale, (c[:, 1] + 2.0 * c[:, 2] * U) * scale
-        n = self.n_fans
-        out, der = np.empty(n), np.empty(n)
+        if np.all((U >= 0.0) & (U <= 1.0)):
+            return self._interpolated(U)
+        return self._evaluated(U[None, :])
+
+    def _evaluated(self, Us):
+        """a_j and a_j' (each (m, n)) for the rows of Us (m, n), from the term itself: each fan
+        alone at its command, at its peak key point, less the field with every fan off."""
+        m, n = Us.shape
+        out, der = np.empty((m, n)), np.empty((m, n))
+        fans = np.tile(np.arange(n), m)
         step = max(1, _PAIRS_PER_BLOCK // n)
-        for lo in range(0, n, step):
-            idx = np.arange(lo, min(n, lo + step))
-            rows = np.zeros((len(idx), n))
-            rows[np.arange(len(idx)), idx] = U[idx]
-            v, J = self.term.value_and_jacobian(rows, self.peak_points[idx])
-            base = self.term(np.zeros((len(idx), n)), self.peak_points[idx])
-            out[idx] = v - base
-            der[idx] = J[np.arange(len(idx)), idx]
+        for lo in range(0, m * n, step):
+            pick = np.arange(lo, min(m * n, lo + step))
+            j = fans[pick]
+            rows = np.zeros((len(pick), n))
+            rows[np.arange(len(pick)), j] = Us.ravel()[pick]
+            v, J = self.term.value_and_jacobian(rows, self.peak_points[j])
+            base = self.term(np.zeros((len(pick), n)), self.peak_points[j])
+            out.ravel()[pick] = v - base
+            der.ravel()[pick] = J[np.arange(len(pick)), j]
+        if m == 1:
+            return out[0], der[0]
         return out, der
+
+    def _interpolated(self, U):
+        """a_j(U_j), a_j'(U_j) for U in [0, 1]: cubic Hermite between the tabulated commands
+        (a prior's term costs a model evaluation per call; the update asks hundreds of times)."""
+        if self._table is None:
+            grid = np.linspace(0.0, 1.0, _TABLE_POINTS)
+            self._table = self._evaluated(np.repeat(grid[:, None], self.n_fans, axis=1))
+        values, slopes = self._table
+        h = 1.0 / (_TABLE_POINTS - 1)
+        i = np.minimum((U / h).astype(int), _TABLE_POINTS - 2)
+        t = U / h - i
+        cols = np.arange(self.n_fans)
+        y0, y1 = values[i, cols], values[i + 1, cols]
+        m0, m1 = slopes[i, cols] * h, slopes[i + 1, cols] * h
+        t2, t3 = t * t, t * t * t
+        a = (2 * t3 - 3 * t2 + 1) * y0 + (t3 - 2 * t2 + t) * m0 + (-2 * t3 + 3 * t2) * y1 + (t3 - t2) * m1
+        da = ((6 * t2 - 6 * t) * y0 + (3 * t2 - 4 * t + 1) * m0 + (-6 * t2 + 6 * t) * y1
+              + (3 * t2 - 2 * t) * m1) / h
+        return a, da
 
     def invert(self, t, lo, hi, iterations: int = 40) -> np.ndarray:
         """Commands U in [lo, hi] (n,) with a_j(U_j) = t_j [N] (bisection safeguarded Newton;

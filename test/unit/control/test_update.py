@@ -120,3 +120,31 @@ def test_a_shared_load_slope_learns_that_every_fan_gives_less_the_harder_all_run
     err_l = np.sqrt(np.mean((predicted(loaded, theta_l, U3) - truth(U3)) ** 2))
     err_p = np.sqrt(np.mean((predicted(plain, theta_p, U3) - truth(U3)) ** 2))
     assert err_l < 0.3 * err_p, (err_l, err_p)
+
+
+def test_a_prior_without_a_closed_form_thrust_curve_is_interpolated_to_its_own_values():
+    """The per-fan thrust curves of a composed prior (no polynomial to read) come from a table
+    of the term's own values and slopes: exact for a cubic curve, within 0.1 % of the largest
+    thrust where an ESC's dead band puts a kink between two nodes, and the term itself outside
+    0..1."""
+    from wind_shaper.app import Setup
+    from wind_shaper.control.basis import FanBasis
+    from wind_shaper.model.fan_effects import FanCurve
+    from wind_shaper.model.flow_effects import DeadBand
+    setup = Setup.load()
+    fans, Z = setup.geometry.fans, setup.geometry.key_points
+    reference = setup.load_model(setup.config_dir / 'reference.yaml')
+    rng = np.random.default_rng(1)
+    U = rng.uniform(0.0, 1.0, (200, fans.n_fans))
+    for term, tolerance in ((FanCurve(fans, reference, group=['higher', 'lower', 'central'], bend=0.7), 1e-9),
+                            (DeadBand(fans, reference, threshold=0.123, saturation=0.87), 1e-3)):
+        basis = FanBasis.from_term(term, Z)
+        top = float(np.max(basis._evaluated(np.ones((1, fans.n_fans)))[0]))
+        for u in U:
+            a, da = basis.thrust(u)
+            a_direct, da_direct = basis._evaluated(u[None])
+            assert np.max(np.abs(a - a_direct)) <= tolerance * top
+            if tolerance < 1e-6:   # the slopes too, where the curve is smooth
+                assert np.allclose(da, da_direct, rtol=1e-6, atol=1e-9 * top)
+    outside = np.full(fans.n_fans, 1.02)
+    assert np.allclose(basis.thrust(outside)[0], basis._evaluated(outside[None])[0])
