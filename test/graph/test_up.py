@@ -72,11 +72,16 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
     assert min(errors[1:]) < errors[0] and errors[-1] < 1.02 * errors[0], \
         f'the error did not fall: {errors}'
     used = report['tunnel_time_s']   # plate and fan-settle time per iteration and in total
-    assert len(used['plate_s']) == 3 and all(4.0 < t < 30.0 for t in used['plate_s']), used
+    assert len(used['plate_s']) == 3, used
+    for k, plate_s in enumerate(used['plate_s']):
+        # each 5 s sweep, with the estimate that refused it when one more was needed (a loaded
+        # host loses poses: 5 sweeps and 33.6 s in one CI run): within 10 s a sweep
+        sweeps = json.loads((run / 'iterations' / f'k{k:03d}' / 'record.json').read_text())['info']['sweeps']
+        assert 1 <= sweeps <= 5 and 4.0 < plate_s < 10.0 * sweeps, (k, plate_s, sweeps, used)
     assert used['total_s'] == pytest.approx(used['plate_total_s'] + used['settle_total_s'])
     for png in ('field_maps.png', 'error.png', 'pwm.png'):
         assert (run / 'report' / png).stat().st_size > 1000
-    print(f'RMSE per iteration through the graph: {errors}')
+    print(f'RMSE per iteration through the graph: {errors}; plate time {used["plate_s"]} s')
 
 
 @pytest.mark.timeout(240)
