@@ -86,11 +86,13 @@ def test_up_runs_iterations_through_the_graph_and_writes_the_report(up, tmp_path
 
 @pytest.mark.timeout(240)
 def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
-    # the simulated plate would sweep for 20 s; the coordinator watches the estimate (coverage
+    # the simulated plate would sweep for 40 s; the coordinator watches the estimate (coverage
     # and largest std, live in its status) and ends the sweep through the stop service. The
     # shipped threshold (an RMS of 2.0 x the noise floor, 0.10 N) is met on the parabola about
     # when the plate's tour has covered the disc once: this test's config asks for 3.0 x, so what
-    # is tested is the ending, not how small the std gets
+    # is tested is the ending, not how small the std gets. On a loaded host the peeks come late
+    # (good enough after 21.2 s in one CI run, where a 20 s sweep was asked): the sweep is long
+    # enough that ending it is still told apart from its running out
     config = tmp_path / 'config'
     shutil.copytree(ROOT / 'config', config)
     shaping = config / 'shaping.yaml'
@@ -98,7 +100,7 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     assert 'std_factor: 2.0 ' in text
     shaping.write_text(text.replace('std_factor: 2.0 ', 'std_factor: 3.0 '))
     u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
-           '--set', 'coordinator.sweep_duration_s=20.0', '--set', 'coordinator.sweep_min_s=3.0',
+           '--set', 'coordinator.sweep_duration_s=40.0', '--set', 'coordinator.sweep_min_s=3.0',
            '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3',
            '--config', str(config))
     assert u.wait(220) == 0, u.output()[-6000:]
@@ -107,13 +109,13 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
                   r'([\d.]+) N RMS <= ([\d.]+) N, largest ([\d.]+) N\): ending the sweep', out)
     assert m, out[-5000:]
     assert float(m.group(2)) <= float(m.group(3)) and float(m.group(4)) <= 2.0 * float(m.group(3))
-    assert 3.0 <= float(m.group(1)) < 19.0, m.group(0)
+    assert 3.0 <= float(m.group(1)) < 36.0, m.group(0)
     # plate time counts every sweep: a loaded machine can lose samples, the estimator refuses
-    # the first sweep and the plate sweeps again (in full when it was refused, 20 s): the sweep
+    # the first sweep and the plate sweeps again (in full when it was refused, 40 s): the sweep
     # that was good enough must still have ended early
     record = json.loads((tmp_path / 'runs' / 'short-sweep' / 'iterations' / 'k000' / 'record.json').read_text())
     sweeps = record['info']['sweeps']
     assert 1 <= sweeps <= 3 and (sweeps == 1) == ('sweeping again to fill the gaps' not in out), out[-5000:]
-    # a sweep that ran in full takes its 20 s and more; one stopped early less (the stop's own
+    # a sweep that ran in full takes its 40 s and more; one stopped early less (the stop's own
     # latency included)
-    assert 3.0 <= record['info']['plate_s'] < 20.0 + 21.0 * (sweeps - 1), record['info']
+    assert 3.0 <= record['info']['plate_s'] < 40.0 + 41.0 * (sweeps - 1), record['info']
