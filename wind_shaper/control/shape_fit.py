@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
+from ..core.errors import ConfigError
 from .basis import FanBasis
 
 #: What ``ShapeFit`` can fit per fan: its gain, the landing point (x, y) of its jet, its width.
@@ -113,6 +114,9 @@ class ShapeFit:
         frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats)
                                 + [[False]] * (self.swirl + self.loaded))
         if basis.sparse:
+            if self.loaded:
+                raise ConfigError('the load slope (load_sd) needs a dense prior; a large wall\'s '
+                                  'sparse fit has per-fan gains only: set load_sd to 0')
             blocks, rhs = [], []
             for U, F, w in maps:
                 a, _ = basis.thrust(U)

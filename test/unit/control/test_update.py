@@ -148,3 +148,18 @@ def test_a_prior_without_a_closed_form_thrust_curve_is_interpolated_to_its_own_v
                 assert np.allclose(da, da_direct, rtol=1e-6, atol=1e-9 * top)
     outside = np.full(fans.n_fans, 1.02)
     assert np.allclose(basis.thrust(outside)[0], basis._evaluated(outside[None])[0])
+
+
+def test_the_load_slope_asks_for_a_dense_prior():
+    from wind_shaper.app import Setup
+    from wind_shaper.control.basis import FanBasis
+    from wind_shaper.control.shape_fit import ShapeFit
+    from wind_shaper.core.errors import ConfigError
+    setup = Setup.load()
+    model, Z = setup.load_model(), setup.geometry.key_points
+    basis = FanBasis.from_term(model, Z, sparse=True)
+    U = np.full(model.n_fans, 0.5)
+    maps = [(U, np.zeros(len(Z)), np.ones(len(Z)))]
+    with pytest.raises(ConfigError, match='load_sd'):
+        ShapeFit(load_sd=0.5).fit(basis, maps, np.ones(model.n_fans, bool))
+    ShapeFit().fit(basis, maps, np.ones(model.n_fans, bool))   # without it the sparse fit runs
