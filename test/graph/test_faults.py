@@ -341,20 +341,25 @@ def test_cancel_and_the_status_answer_while_the_largest_model_text_is_read(rig, 
 
         answered(cancel, Trigger.Request())   # warm: the first call also matches the reply
         status_seconds()
-        t_start = time.monotonic()
-        future = set_model.call_async(SetModel.Request(model_yaml=text))
-        cancels, statuses = [], []
-        while not future.done() and time.monotonic() - t_start < 90:
-            response, seconds = answered(cancel, Trigger.Request())
-            assert 'no iteration or experiment is running' in response.message, response.message
-            cancels.append(seconds)
-            if not future.done():
-                statuses.append(status_seconds())
-            time.sleep(0.1)
-        assert future.done(), 'set_model did not answer within 90 s'
-        reading_s = time.monotonic() - t_start
-        assert future.result().success, future.result().message[:500]
-        during = [t for t in commands if t_start <= t <= t_start + reading_s]
+        # a fast machine reads the text in a few seconds: send it again until both calls were
+        # measured at least three times while a text was being read
+        cancels, statuses, reading_s, during, reads = [], [], 0.0, [], 0
+        while reads < 6 and (len(cancels) < 3 or len(statuses) < 3):
+            reads += 1
+            t_start = time.monotonic()
+            future = set_model.call_async(SetModel.Request(model_yaml=text))
+            while not future.done() and time.monotonic() - t_start < 90:
+                response, seconds = answered(cancel, Trigger.Request())
+                assert 'no iteration or experiment is running' in response.message, response.message
+                if not future.done():
+                    cancels.append(seconds)
+                    statuses.append(status_seconds())
+                time.sleep(0.1)
+            assert future.done(), 'set_model did not answer within 90 s'
+            read_s = time.monotonic() - t_start
+            reading_s += read_s
+            assert future.result().success, future.result().message[:500]
+            during += [t for t in commands if t_start <= t <= t_start + read_s]
     finally:
         stop.set()
         spinner.join(5.0)
@@ -362,9 +367,9 @@ def test_cancel_and_the_status_answer_while_the_largest_model_text_is_read(rig, 
         node.destroy_node()
         context.try_shutdown()
     assert len(cancels) >= 3 and len(statuses) >= 3, \
-        f'the text was read in {reading_s:.1f} s: too fast to measure ({cancels}, {statuses})'
+        f'{reads} texts were read in {reading_s:.1f} s: too fast to measure ({cancels}, {statuses})'
     cancel_s, status_s = statistics.median(cancels), statistics.median(statuses)
-    summary = (f'read in a worker thread in {reading_s:.1f} s; meanwhile cancel answered in '
+    summary = (f'read {reads} time(s) in a worker thread in {reading_s:.1f} s in all; meanwhile cancel answered in '
                f'{1000 * cancel_s:.0f} ms and a new status subscriber got the status in '
                f'{1000 * status_s:.0f} ms (medians of {len(cancels)} and {len(statuses)}), the '
                f'command republished {len(during)} times')
