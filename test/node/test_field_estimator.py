@@ -194,12 +194,14 @@ def test_estimate_is_the_core_estimate_of_the_aligned_pairs(harness, sim, setup)
     # stamps survive the message round trip to well under a microsecond
     np.testing.assert_allclose(got.times, expected.times, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(got.pwm, U)
-    # and the field is the core FieldEstimator's on those pairs, to float precision
+    # and the field is the core FieldEstimator's on those pairs (computed in the node's worker
+    # process on one BLAS thread: the rounding, and so where the hyperparameter fit stops,
+    # differs from this process's by about 1e-9)
     core = setup.shaping.make_estimator().estimate(got, setup.geometry.key_points)
     kp, mean, std = estimate_from_msg(resp.estimate)
     np.testing.assert_array_equal(kp, setup.geometry.key_points)
-    np.testing.assert_allclose(mean, core.mean, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(std, core.std, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(mean, core.mean, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(std, core.std, rtol=1e-7, atol=1e-9)
     assert resp.estimate.n_used == core.n_used and resp.estimate.n_samples == 400
     assert resp.estimate.iteration == resp.samples.iteration == 3
     assert list(resp.estimate.pwm) == list(U)

@@ -40,7 +40,8 @@ from wind_shaper_msgs.msg import FieldEstimate, ForceBlock
 from wind_shaper_msgs.srv import EstimateField, QueryField
 
 from ..app import Setup
-from ..estimation import SampleBuffer, align_sweep
+from ..estimation import SampleBuffer
+from ..estimation.worker import EstimateWorker, StreamSnapshot, align_and_estimate
 from ..core.errors import WindShaperError
 from ..core.limits import Limits
 from ..storage import SweepJournal
@@ -49,6 +50,7 @@ from ..ros import names, qos
 from ..ros.convert import estimate_to_msg, seconds_to_stamp, stamp_to_seconds, sweep_to_msg
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
+from ..ros.waiting import in_thread
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,11 @@ class FieldEstimatorParams:
     journal_sync_s: float = param(1.0, 'fsync the journal at least this often while a sweep is '
                                   'collected [s]: a power cut loses at most that much',
                                   low=0.0, high=3600.0)
+    estimate_worker: bool = param(True, 'pair the streams and fit the GP in a child process, so '
+                                  'that samples, calls and the heartbeat go on meanwhile (false: '
+                                  'on the executor thread)')
+    estimate_timeout_s: float = param(300.0, 'an estimate in the child process that takes longer '
+                                      'is given up and the child replaced [s]', low=1.0, high=3600.0)
 
 
 class FieldEstimatorNode(Node):
@@ -101,6 +108,9 @@ class FieldEstimatorNode(Node):
         self._last = 'no estimate yet'
         self._last_ok = True
         self._estimates = 0
+        self._worker = EstimateWorker(p.estimate_timeout_s) if p.estimate_worker else None
+        if self._worker is not None:
+            self._worker.start()
         # a graph in a namespace keeps its own journal: <journal_dir>/<namespace>
         journal_dir = Path(p.journal_dir) / names.folder_part(self.get_namespace()) if p.journal_dir else None
         self._journal = (SweepJournal(journal_dir, p.journal_keep, sync_period_s=p.journal_sync_s)
@@ -190,9 +200,31 @@ class FieldEstimatorNode(Node):
             f' (journal: {folder})' if self._journal is not None else '')
         return response
 
-    def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
+    async def _compute(self, streams: StreamSnapshot, required, peek: bool):
+        """``align_and_estimate`` on ``streams``, in the worker process (awaited in a thread, so
+        the executor goes on) or, without one, here; reuses the hyperparameters this sweep's
+        first estimate fitted until the sweep has grown ``refit_growth`` times."""
+        fit = self._sweep_fit
+        n_poses = int(np.sum(np.isfinite(streams.pose_t)))
+        reuse = fit[0] if fit is not None and n_poses < self._refit_growth * fit[1] else None
+        args = (self._estimator, self._key_points, streams, required, reuse, peek)
+        if self._worker is None:
+            outcome = align_and_estimate(*args)
+        else:
+            outcome = await in_thread(self, self._worker.run, *args, name='wind_shaper-estimate')
+        if reuse is None and outcome.estimate is not None:
+            self._sweep_fit = (outcome.estimate, len(outcome.sweep))
+        return outcome
+
+    def _streams(self, request: EstimateField.Request, force_t, force, pose_t, pose_x, pose_y):
+        finite = pose_t[np.isfinite(pose_t)]
+        t_start = float(finite.min()) if len(finite) else 0.0
+        return StreamSnapshot(force_t, force, pose_t, pose_x, pose_y, self._request_pwm(request),
+                              t_start)
+
+    async def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
         if request.peek:
-            return self._handle_peek(request, response)
+            return await self._handle_peek(request, response)
         with self._lock:
             was_collecting = self._collecting
             self._collecting = False
@@ -203,13 +235,15 @@ class FieldEstimatorNode(Node):
             if not was_collecting and len(force_t) == 0 and len(pose_t) == 0:
                 raise WindShaperError('no sweep was collected: call begin_sweep, move the plate, '
                                       'then call estimate')
-            pwm = self._request_pwm(request)
+            streams = self._streams(request, force_t, force, pose_t, pose_x, pose_y)
             required = self._required(request)
-            finite = pose_t[np.isfinite(pose_t)]
-            t_start = float(finite.min()) if len(finite) else 0.0
+            pwm, t_start = streams.pwm, streams.t0
             t_compute = time.perf_counter()
-            sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
-            est = self._estimate(sweep, required)
+            outcome = await self._compute(streams, required, peek=False)
+            sweep = outcome.sweep
+            if outcome.error is not None:
+                raise outcome.error
+            est = outcome.estimate
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             with self._lock:
@@ -247,18 +281,7 @@ class FieldEstimatorNode(Node):
         response.message = message
         return response
 
-    def _estimate(self, sweep, required):
-        """The field from ``sweep`` (the key points ``required`` must be passed), reusing the
-        hyperparameters this sweep's first estimate fitted until the sweep has grown
-        ``refit_growth`` times."""
-        fit = self._sweep_fit
-        reuse = fit[0] if fit is not None and len(sweep) < self._refit_growth * fit[1] else None
-        est = self._estimator.estimate(sweep, self._key_points, required=required, reuse=reuse)
-        if reuse is None:
-            self._sweep_fit = (est, len(sweep))
-        return est
-
-    def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
+    async def _handle_peek(self, request: EstimateField.Request, response: EstimateField.Response):
         """How far the sweep is: the estimate from what is collected so far, collection going
         on; nothing is journalled or closed; the field so far goes out on wind_shaper/field/partial
         (for the live view, also before every key point is passed). The pairs come back for the coverage (also when the estimate is refused for
@@ -266,24 +289,26 @@ class FieldEstimatorNode(Node):
         with self._lock:
             force_t, force = self._force.arrays()
             pose_t, pose_x, pose_y = self._pose.arrays()
-        sweep = None
         try:
-            pwm = self._request_pwm(request)
+            streams = self._streams(request, force_t, force, pose_t, pose_x, pose_y)
             required = self._required(request)
-            finite = pose_t[np.isfinite(pose_t)]
-            t_start = float(finite.min()) if len(finite) else 0.0
+            pwm, t_start = streams.pwm, streams.t0
             t_compute = time.perf_counter()
-            sweep = align_sweep(force_t, force, pose_t, pose_x, pose_y, pwm, t0=t_start)
-            names_ = list(request.fan_names)
-            response.samples = sweep_to_msg(sweep, request.iteration, names_,
-                                            stamp=seconds_to_stamp(t_start))
             # one GP for both: the field so far, published for the live view whatever the
             # coverage, is the peek's answer once the (required) key points are passed
-            est = self._estimate(sweep, np.zeros(len(self._key_points), dtype=bool))
+            outcome = await self._compute(streams, required, peek=True)
+            sweep, est = outcome.sweep, outcome.estimate
+            names_ = list(request.fan_names)
+            if sweep is not None:
+                response.samples = sweep_to_msg(sweep, request.iteration, names_,
+                                                stamp=seconds_to_stamp(t_start))
+            if outcome.error is not None:
+                raise outcome.error
             self._partial_pub.publish(estimate_to_msg(
                 est, request.iteration, names_, pwm, len(sweep),
                 stamp=seconds_to_stamp(t_start + sweep.times[-1])))
-            self._estimator.check_coverage(sweep, self._key_points, required=required)
+            if outcome.check is not None:
+                raise outcome.check
             response.compute_s = time.perf_counter() - t_compute
         except WindShaperError as exc:
             response.success = False
@@ -348,6 +373,8 @@ class FieldEstimatorNode(Node):
         return required
 
     def destroy_node(self):
+        if self._worker is not None:
+            self._worker.close()
         if self._journal is not None:
             self._journal.shutdown()   # an open sweep stays open: a restart takes it back
         super().destroy_node()
