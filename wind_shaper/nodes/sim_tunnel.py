@@ -358,11 +358,17 @@ class SimTunnel(Node):
     # ------------------------------------------------------------------ shutdown
     def _close_links(self) -> None:
         self._stop.set()
+        # one deadline for all the threads, within `up`'s 5 s grace: each waited up to 2 s in
+        # turn, 8 s in all (`up` SIGKILLed a sim_tunnel after a SIGINT once, in a test run)
+        deadline = time.monotonic() + 3.0
+
+        def left() -> float:
+            return max(0.1, deadline - time.monotonic())
         if self._mocap_thread is not None:
-            self._mocap_thread.join(2.0)
+            self._mocap_thread.join(left())
         for link in (self._autopilot, self._netft, self.live):
             if link is not None:
-                link.close()
+                link.close(left())
 
     def destroy_node(self):
         self._close_links()
