@@ -458,3 +458,36 @@ def test_the_field_can_be_queried_anywhere_in_the_measured_disc(harness, sim, se
     assert harness.query_field([0.1], [0.1]).success
     fault_row('a field query outside the tunnel, uneven or NaN, or before any estimate',
               'refused with the reason; the estimator keeps answering', True)
+
+
+@pytest.mark.parametrize('in_worker', [True, False], ids=['worker', 'executor'])
+def test_samples_and_calls_are_taken_while_an_estimate_is_computed(ros_context, sim, tmp_path,
+                                                                   in_worker):
+    """With the estimate in the worker process the executor goes on during a long estimate: a
+    parameter call is answered and new samples are buffered before the peek's answer (on the
+    executor thread, the old way, neither happens until the estimate is done)."""
+    h = Harness(ros_context, tmp_path / 'journal', overrides=[
+        Parameter('estimate_worker', value=in_worker)])
+    try:
+        from rcl_interfaces.srv import ListParameters
+        params = h.peer.create_client(ListParameters, f'/{names.FIELD_ESTIMATOR}/list_parameters')
+        assert params.wait_for_service(timeout_sec=WAIT_S)
+        assert h.begin_sweep().success
+        force_t, force, pose_t, pose_xy = sweep_streams(sim, n_poses=6000, seed=9)
+        cut = 5800 * FORCE_PER_POSE
+        h.publish(force_t[:cut], force[:cut], pose_t[:5800], pose_xy[:5800])
+        peek = h.estimate.call_async(EstimateField.Request(
+            iteration=1, fan_names=list(h.node._fan_names), pwm=[float(u) for u in U], peek=True))
+        answered = params.call_async(ListParameters.Request())
+        h.publish(force_t[cut:], force[cut:], pose_t[5800:], pose_xy[5800:], expect_buffered=False)
+        buffered = wait_until(lambda: answered.done() and len(h.node._pose) == 6000 or peek.done(),
+                              timeout=60.0)
+        during = answered.done() and len(h.node._pose) == 6000 and not peek.done()
+        assert wait_until(peek.done, timeout=60.0) and peek.result().success, peek.result().message
+        assert buffered
+        if in_worker:
+            assert during, 'the call or the samples waited for the estimate'
+        else:
+            assert not during, 'the executor answered during its own estimate'
+    finally:
+        h.close()
