@@ -16,7 +16,9 @@ m], commands [fraction], key points [m, tunnel frame].
 from __future__ import annotations
 
 import multiprocessing
+import os
 import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
@@ -83,11 +85,24 @@ def _ready() -> bool:
     return True
 
 
-def _one_blas_thread() -> None:
-    """The worker's BLAS on one thread: its matrices are small, and beside the graph's busy
-    processes a second BLAS thread spinning for its turn made an estimate several times slower."""
+def _init_worker(parent: int) -> None:
+    """In the worker, once: BLAS on one thread (its matrices are small, and beside the graph's
+    busy processes a second BLAS thread spinning for its turn made an estimate several times
+    slower), and a watch on the node process ``parent``: a node killed outright (SIGKILL, as
+    the supervisor kills a hung one) never tells its worker to stop, and the worker holds both
+    ends of its own task pipe, so it would wait for work forever."""
     from threadpoolctl import threadpool_limits
     threadpool_limits(1)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_PARENT_CHECK_S)
+        os._exit(0)
+    threading.Thread(target=watch, name='wind_shaper-parent-watch', daemon=True).start()
+
+
+#: how often the worker checks that its node process still runs [s]
+_PARENT_CHECK_S = 1.0
 
 
 class EstimateWorker:
@@ -116,7 +131,7 @@ class EstimateWorker:
             self._replace()
         if self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                             initializer=_one_blas_thread)
+                                             initializer=_init_worker, initargs=(os.getpid(),))
             self._pool.submit(_ready)   # the child imports numpy, scipy and the estimator now
             self.started += 1
         return self._pool

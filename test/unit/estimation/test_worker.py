@@ -89,3 +89,37 @@ def test_a_worker_that_dies_or_hangs_is_replaced_and_the_next_estimate_works(swe
         assert w.run(estimator, kp, streams).error is None and w.started == 4
     finally:
         w.close()
+
+
+def test_a_node_killed_outright_leaves_no_worker_behind(tmp_path):
+    """The supervisor SIGKILLs a hung node: its worker process must not outlive it."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    script = tmp_path / 'node.py'
+    script.write_text(
+        'import sys, time\n'
+        'from wind_shaper.estimation.worker import EstimateWorker\n'
+        'if __name__ == "__main__":\n'
+        '    w = EstimateWorker()\n'
+        '    w.start()\n'
+        '    w._call(time.sleep, 0)\n'
+        '    print(*w._pool._processes, flush=True)\n'
+        '    time.sleep(60)\n')
+    node = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    worker_pid = None
+    try:
+        worker_pid = int(node.stdout.readline().split()[0])
+        assert os.path.exists(f'/proc/{worker_pid}')
+        node.send_signal(signal.SIGKILL)
+        node.wait(10)
+        deadline = time.monotonic() + 10
+        while os.path.exists(f'/proc/{worker_pid}') and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not os.path.exists(f'/proc/{worker_pid}'), 'the worker outlived its node'
+    finally:
+        node.kill()
+        node.wait(10)
+        if worker_pid is not None and os.path.exists(f'/proc/{worker_pid}'):
+            os.kill(worker_pid, signal.SIGKILL)   # leave nothing running, also when it failed
