@@ -101,8 +101,12 @@ class SweepJournal:
         with self._lock:
             if self._folder is not None:
                 self._close_locked('abandoned')
-            stamp = time.strftime('%Y%m%d-%H%M%S', time.gmtime())
-            folder = self.root / f'sweep-{stamp}-{time.time_ns() % 1_000_000_000:09d}'
+            # one clock reading for the seconds and the nanoseconds: read apart, a name made at
+            # a second's turn took the old second's stamp and the new one's fraction and sorted
+            # before the sweep made just before it (pruning then removed the newer one)
+            now_ns = time.time_ns()
+            stamp = time.strftime('%Y%m%d-%H%M%S', time.gmtime(now_ns // 1_000_000_000))
+            folder = self.root / f'sweep-{stamp}-{now_ns % 1_000_000_000:09d}'
             folder.mkdir()
             (folder / OPEN_MARK).write_bytes(b'')
             self._open_files(folder)

@@ -93,6 +93,36 @@ def test_a_new_sweep_abandons_the_open_one_and_old_sweeps_are_pruned(tmp_path):
     assert SweepJournal(tmp_path).reopen() is None       # nothing open
 
 
+def test_sweeps_begun_across_a_seconds_turn_sort_in_the_order_they_were_begun(tmp_path, monkeypatch):
+    """The folder name's seconds and nanoseconds come from one clock reading: read apart, a
+    sweep begun as the second turned sorted before the one begun just before it, and pruning
+    removed the newer. A fake clock gives each reading in turn, 0.4 s apart across a turn."""
+    import time as real_time
+    from wind_shaper.storage import journal as journal_module
+    readings = iter(int((1_795_000_000.5 + 0.4 * i) * 1e9) for i in range(100))
+
+    class Clock:
+        monotonic = staticmethod(real_time.monotonic)
+        strftime = staticmethod(real_time.strftime)
+
+        @staticmethod
+        def time_ns():
+            return next(readings)
+
+        @staticmethod
+        def gmtime(seconds=None):
+            return real_time.gmtime(next(readings) / 1e9 if seconds is None else seconds)
+    monkeypatch.setattr(journal_module, 'time', Clock)
+    journal = SweepJournal(tmp_path, keep=3)
+    begun = []
+    for _ in range(6):
+        begun.append(journal.begin())
+        journal.close('estimated')
+    assert sorted(begun) == begun
+    kept = sorted(p.parent for p in tmp_path.glob(f'sweep-*/{OUTCOME_FILE}'))
+    assert kept == begun[-3:]
+
+
 def test_an_unwritable_journal_folder_is_refused_with_what_to_do(tmp_path):
     blocker = tmp_path / 'a_file'
     blocker.write_text('')
