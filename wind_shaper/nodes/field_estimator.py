@@ -97,7 +97,7 @@ class FieldEstimatorNode(Node):
         #: grown this many times (``shaping.sweep.refit_growth``, as the in-process loop does):
         #: a fit costs a few hundred ms, and the coordinator peeks every couple of seconds
         self._refit_growth = float(setup.shaping.make_sweep_length().refit_growth)
-        self._sweep_fit = None   # (the sweep's estimate with fitted values, its number of pairs)
+        self._sweep_fit = None   # (the sweep's estimate with fitted values, its number of poses)
         self._query_radius = float(setup.geometry.sweep_radius)
         self._latest = None   # (FieldEstimate with its GP, iteration, end-of-sweep stamp [s])
         self._lock = threading.Lock()  # collecting flag + the buffers' begin/end
@@ -213,7 +213,7 @@ class FieldEstimatorNode(Node):
         else:
             outcome = await in_thread(self, self._worker.run, *args, name='wind_shaper-estimate')
         if reuse is None and outcome.estimate is not None:
-            self._sweep_fit = (outcome.estimate, len(outcome.sweep))
+            self._sweep_fit = (outcome.estimate, n_poses)   # counted as it is compared above
         return outcome
 
     def _streams(self, request: EstimateField.Request, force_t, force, pose_t, pose_x, pose_y):
