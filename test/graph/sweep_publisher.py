@@ -60,8 +60,10 @@ def main(argv):
         time.sleep(0.2)
         send_status(IterationStatus.STATE_SWEEPING)
         time.sleep(0.05)
-        start = time.monotonic()
+        # the first stamp is read before the schedule starts, so no sample is stamped later than
+        # it is published (read after, a pause between the two readings stamped samples ahead)
         stamp0_ns = clock.now().nanoseconds
+        start = time.monotonic()
         k = j = 0
         while alive() and k < int(sweep_s * 1000):
             due = start + k * 1e-3

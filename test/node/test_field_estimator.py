@@ -25,6 +25,7 @@ pytestmark = pytest.mark.ros
 
 WAIT_S = 10.0          # bound on every wait: a broken node fails the test in seconds
 FORCE_PER_POSE = 4     # force samples per pose period (400 Hz force for 100 Hz poses)
+HOLD_S = 60.0          # longest a test holds an estimate at its gate [s]
 POSE_DT = 0.01         # pose period [s]
 U = np.array([0.5, 0.45, 0.55, 0.5, 0.4, 0.6, 0.3])
 
@@ -462,13 +463,30 @@ def test_the_field_can_be_queried_anywhere_in_the_measured_disc(harness, sim, se
 
 @pytest.mark.parametrize('in_worker', [True, False], ids=['worker', 'executor'])
 def test_samples_and_calls_are_taken_while_an_estimate_is_computed(ros_context, sim, tmp_path,
-                                                                   in_worker):
+                                                                   in_worker, monkeypatch):
     """With the estimate in the worker process the executor goes on during a long estimate: a
     parameter call is answered and new samples are buffered before the peek's answer (on the
-    executor thread, the old way, neither happens until the estimate is done)."""
+    executor thread, the old way, neither happens until the estimate is done).
+
+    The estimate is held at a gate the test opens, so "long" does not depend on the machine's
+    speed: the real estimate runs once the gate opens."""
+    import wind_shaper.nodes.field_estimator as fe_module
+    gate, entered = threading.Event(), threading.Event()
+
+    def held(compute):
+        def wrapper(*args):
+            entered.set()
+            gate.wait(timeout=HOLD_S)
+            return compute(*args)
+        return wrapper
+
     h = Harness(ros_context, tmp_path / 'journal', overrides=[
         Parameter('estimate_worker', value=in_worker)])
     try:
+        if in_worker:
+            monkeypatch.setattr(h.node._worker, 'run', held(h.node._worker.run))
+        else:
+            monkeypatch.setattr(fe_module, 'align_and_estimate', held(fe_module.align_and_estimate))
         from rcl_interfaces.srv import ListParameters
         params = h.peer.create_client(ListParameters, f'/{names.FIELD_ESTIMATOR}/list_parameters')
         assert params.wait_for_service(timeout_sec=WAIT_S)
@@ -478,13 +496,17 @@ def test_samples_and_calls_are_taken_while_an_estimate_is_computed(ros_context, 
         h.publish(force_t[:cut], force[:cut], pose_t[:5800], pose_xy[:5800])
         peek = h.estimate.call_async(EstimateField.Request(
             iteration=1, fan_names=list(h.node._fan_names), pwm=[float(u) for u in U], peek=True))
+        assert entered.wait(timeout=WAIT_S), 'the peek never reached the estimate'
         answered = params.call_async(ListParameters.Request())
         h.publish(force_t[cut:], force[cut:], pose_t[5800:], pose_xy[5800:], expect_buffered=False)
-        buffered = wait_until(lambda: answered.done() and len(h.node._pose) == 6000 or peek.done(),
-                              timeout=60.0)
-        during = answered.done() and len(h.node._pose) == 6000 and not peek.done()
+        # the worker's executor answers within WAIT_S; the blocked one cannot before the gate
+        # opens itself after HOLD_S
+        during = wait_until(lambda: answered.done() and len(h.node._pose) == 6000,
+                            timeout=WAIT_S if in_worker else 3.0)
+        during = during and not peek.done()
+        gate.set()
         assert wait_until(peek.done, timeout=60.0) and peek.result().success, peek.result().message
-        assert buffered
+        assert wait_until(lambda: answered.done() and len(h.node._pose) == 6000, timeout=WAIT_S)
         if in_worker:
             assert during, 'the call or the samples waited for the estimate'
         else:
