@@ -2,6 +2,7 @@
 collected, and the node processes it starts, found by PID. Used by test_up and test_faults."""
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -14,6 +15,8 @@ import pytest
 NODES = ('sim_tunnel', 'fan_output', 'force_sensor', 'mocap_relay', 'field_estimator',
          'coordinator')
 UP_LINE = re.compile(r'all (\d+) nodes are up in ([\d.]+) s \(pids: (.*)\)')
+#: the supervisor's line for a restarted node, with its new pid
+RESTART_PID = re.compile(r'wind-shaper up: restarting \S+ \(\d+ of \d+\): pid (\d+)')
 
 
 def alive(pid):
@@ -109,10 +112,34 @@ class Up:
         self._reader.join(5.0)
         return code
 
-    def kill(self):
+    def node_pids_named(self):
+        """Every node PID the output named: the start line's and each restart's."""
+        pids = set()
+        for line in list(self.lines):
+            m = UP_LINE.search(line)
+            if m:
+                pids.update(node_pids(m).values())
+            pids.update(int(x) for x in RESTART_PID.findall(line))
+        return pids
+
+    def kill(self, grace_s=10.0):
+        """End the graph: SIGINT (up stops its nodes as after Ctrl-C), SIGKILL after
+        ``grace_s``; then SIGKILL every node process (and its process group: the estimate
+        worker) the output named that is still running. A node left behind by a killed
+        supervisor once kept a core busy for the rest of a CI run."""
         if self.process.poll() is None:
-            self.process.kill()   # its nodes get SIGTERM (parent-death signal)
-            self.process.wait(10)
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(grace_s)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(10)
+        for pid in self.node_pids_named():
+            try:
+                if alive(pid) and 'wind_shaper' in Path(f'/proc/{pid}/cmdline').read_text():
+                    os.killpg(pid, signal.SIGKILL)   # each node leads its own session
+            except (OSError, ValueError):
+                pass
 
 
 def node_pids(match):

@@ -85,3 +85,36 @@ def test_sigusr1_prints_where_every_thread_of_a_running_node_waits(ros_env):
             node.kill()
     assert node.returncode == 0, err
     assert 'Current thread' in err and 'spin_until_future_complete' in err, err
+
+
+# The same node, whose teardown hangs the way a node's did in the middleware (holding the GIL
+# in a C call: here a sleep in destroy_node, which a Python-level watchdog could not interrupt
+# either way).
+HANGING_TEARDOWN = IDLE_NODE.replace('''    def once(self):''', '''    def destroy_node(self):
+        import time
+        time.sleep(60)
+
+    def once(self):''')
+
+
+def test_a_node_whose_teardown_hangs_still_exits_within_the_shutdown_limit(ros_env):
+    """A stopped node exits within SHUTDOWN_LIMIT_S even when its teardown never returns, and
+    says where it hung (an orphaned coordinator once spun in its teardown for minutes)."""
+    import signal
+    import time
+    from wind_shaper.ros.runner import SHUTDOWN_LIMIT_S
+    node = subprocess.Popen([sys.executable, '-c', HANGING_TEARDOWN], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=ros_env)
+    try:
+        assert node.stdout.readline().strip() == 'spinning'
+        node.send_signal(signal.SIGTERM)
+        t0 = time.monotonic()
+        _, err = node.communicate(timeout=SHUTDOWN_LIMIT_S + 20)
+        took = time.monotonic() - t0
+    except subprocess.TimeoutExpired:
+        pytest.fail('the node hung in its teardown past the shutdown limit')
+    finally:
+        if node.poll() is None:
+            node.kill()
+    assert node.returncode == 1 and 'destroy_node' in err, err
+    assert took < SHUTDOWN_LIMIT_S + 10, took

@@ -6,7 +6,7 @@ Plays the rig so that fan_output, force_sensor and mocap_relay run unchanged aga
   applies [us] are mapped back to PWM fractions with the same channel map as fan_output
   (``fan_names``, ``channels``, ``pwm_min_us``, ``pwm_max_us``) and applied to the plant;
 * an ATI Net F/T RDT server on UDP ``127.0.0.1:netft_port`` (``SimNetFtServer``) streaming at
-  ``netft_rate_hz`` the plant's vertical plate force [N] (Fz, sensor frame, positive up) at the
+  ``netft_rate_hz`` (``netft_records_per_datagram`` records per datagram) the plant's vertical plate force [N] (Fz, sensor frame, positive up) at the
   plate's current position: the true plate-averaged field plus the simulator's noise model;
 * ``geometry_msgs/PoseStamped`` of the plate's tracked rigid body on ``/vrpn_mocap/plate/pose``
   at ``mocap_rate_hz`` in the mocap frame (stamped with capture time): pose =
@@ -86,6 +86,9 @@ class SimTunnelParams:
     netft_port: int = param(49152, 'UDP port of the simulated Net F/T on 127.0.0.1 (0 = any free '
                             'port)', low=0, high=65535)
     netft_rate_hz: float = param(1000.0, 'RDT record rate [Hz]', low=1.0, high=7000.0)
+    netft_records_per_datagram: int = param(10, 'RDT records per UDP datagram, as a Net F/T with '
+                                            'RDT buffering sends them (1 = one per datagram)',
+                                            low=1, high=40)
     counts_per_force: float = param(1_000_000.0, 'sensor counts per N (same as force_sensor)', low=1.0)
     counts_per_torque: float = param(1_000_000.0, 'sensor counts per N m (same as force_sensor)', low=1.0)
     mocap_topic: str = param(names.MOCAP_POSE, 'raw mocap pose topic (geometry_msgs/PoseStamped)')
@@ -170,7 +173,8 @@ class SimTunnel(Node):
                                            on_outputs=self._on_outputs, safe_us=p.pwm_min_us,
                                            pwm_min_us=p.pwm_min_us, pwm_max_us=p.pwm_max_us)
             self._netft = SimNetFtServer(self._force_source, HOST, p.netft_port, p.netft_rate_hz,
-                                         p.counts_per_force, p.counts_per_torque)
+                                         p.counts_per_force, p.counts_per_torque,
+                                         records_per_datagram=p.netft_records_per_datagram)
         except OSError as exc:
             raise ConfigError(f'cannot open the simulated rig on {HOST} (MAVLink port '
                               f'{p.mavlink_port}, Net F/T port {p.netft_port}): {exc}; another '

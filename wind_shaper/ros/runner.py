@@ -46,6 +46,10 @@ class _StopFlag:
 
 _stop = _StopFlag()
 
+#: Longest a node's shutdown may take before it is ended hard [s] (``wind-shaper up`` SIGKILLs a
+#: node 5 s after its SIGINT; a node started alone has nobody to do that).
+SHUTDOWN_LIMIT_S = 4.0
+
 
 def _request_stop(signum, frame):
     # SIGINT and SIGTERM (e.g. from the supervisor) take the same clean path.
@@ -85,9 +89,17 @@ def run(node_cls, args=None, *, executor: str = 'single') -> int:
         print(f'{node_cls.__name__}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
-        if ex is not None:
-            ex.shutdown(timeout_sec=2.0)  # let running callbacks finish before the node goes
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # A clean shutdown takes well under a second; one that hangs in the middleware (seen: a
+        # coordinator orphaned by a SIGKILLed supervisor, stuck in Fast DDS's participant
+        # teardown at 100 % CPU for minutes) is ended by faulthandler's C watchdog, which needs
+        # no GIL: it prints every thread's stack and exits with code 1.
+        faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
+        try:
+            if ex is not None:
+                ex.shutdown(timeout_sec=2.0)  # let running callbacks finish before the node goes
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     return code

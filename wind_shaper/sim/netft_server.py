@@ -2,8 +2,9 @@
 
 ``SimNetFtServer`` binds a UDP socket (port 0 = a free port; ``port`` tells which) and behaves
 like the sensor: a start request (command 2) streams ``sample_count`` records (0 = until stopped)
-to the address the request came from, one record per datagram at ``rate_hz``, paced by a
-monotonic clock (when the thread is late it sends the records it owes back to back, at most
+to the address the request came from at ``rate_hz``, paced by a monotonic clock, one record
+per datagram or, with ``records_per_datagram`` > 1, that many back to back in each datagram as
+a Net F/T does with RDT buffering (each datagram leaves when its last record is due) (when the thread is late it sends the records it owes back to back, at most
 ``max_batch`` at once; beyond that it skips ahead and counts ``late_skips``); a stop request
 (command 0) stops; a bias request (0x42) zeroes the current reading.
 
@@ -107,7 +108,7 @@ class SimNetFtServer(UdpPeer):
                  port: int = 0, rate_hz: float = 1000.0, counts_per_force: float = 1_000_000.0,
                  counts_per_torque: float = 1_000_000.0, *, faults: NetFtFaults | None = None,
                  initial_rdt_sequence: int = 1, initial_ft_sequence: int = 0,
-                 max_batch: int = 100):
+                 max_batch: int = 100, records_per_datagram: int = 1):
         if not (isinstance(rate_hz, (int, float)) and 0 < rate_hz <= 10_000):
             raise ProtocolConfigError(f'rate_hz must be in (0, 10000]; got {rate_hz!r} '
                                       f'(Net F/T: up to 7000 Hz)')
@@ -117,6 +118,18 @@ class SimNetFtServer(UdpPeer):
         self.rate_hz = float(rate_hz)
         self.calibration = NetFtCalibration(counts_per_force, counts_per_torque)
         self.faults = faults or NetFtFaults()
+        if not (isinstance(records_per_datagram, int) and 1 <= records_per_datagram <= 40):
+            raise ProtocolConfigError(f'records_per_datagram must be a whole number in 1..40; got '
+                                      f'{records_per_datagram!r}')
+        #: any fault configured: the per-record draws are only made then (they cost CPU at kHz)
+        self._faulty = any(getattr(self.faults, name) > 0 for name in (
+            'drop_probability', 'reorder_probability', 'duplicate_probability',
+            'truncate_probability', 'status_fault_probability', 'overflow_probability'))
+        if self._faulty and records_per_datagram > 1:
+            raise ProtocolConfigError('fault injection works on datagrams of one record: use '
+                                      'records_per_datagram 1 with faults')
+        self.records_per_datagram = records_per_datagram
+        self._buffered: list[bytes] = []    # records of the datagram being filled
         self.max_batch = int(max_batch)
         self._rng = random.Random(self.faults.seed)
         self._rdt_seq = int(initial_rdt_sequence)
@@ -170,10 +183,12 @@ class SimNetFtServer(UdpPeer):
         return False
 
     def _on_close(self) -> None:
-        with self._lock:  # a record held back for reordering was never sent
+        with self._lock:  # a record held back for reordering, or buffered, was never sent
             if self._held is not None:
                 self._log.unsent.append(self._held[0])
                 self._held = None
+            self._log.unsent.extend(int.from_bytes(r[:4], 'big') for r in self._buffered)
+            self._buffered = []
 
     # ---------------------------------------------------------------- loop
     def _run(self) -> None:
@@ -183,7 +198,8 @@ class SimNetFtServer(UdpPeer):
             if self._streaming:
                 self._emit_due(time.monotonic())
                 if self._streaming:
-                    timeout = min(timeout, max(0.0, self._t_start + self._k * period
+                    last = self._k + self.records_per_datagram - len(self._buffered) - 1
+                    timeout = min(timeout, max(0.0, self._t_start + last * period
                                                - time.monotonic()))
             ready = self._wait_readable(timeout)
             if ready is None:
@@ -204,6 +220,7 @@ class SimNetFtServer(UdpPeer):
             return
         if request.command == RdtCommand.START_REALTIME:
             self.requests['start'] += 1
+            self._flush()   # the old stream's last records, to the address that asked for them
             self._client = addr[:2]
             self._remaining = request.sample_count
             self._k = 0
@@ -219,6 +236,7 @@ class SimNetFtServer(UdpPeer):
             self.requests['unknown'] += 1
 
     def _finish(self) -> None:
+        self._flush()
         if self._held is not None:
             # nothing intact was sent after it, so it arrives in order after all: not reordered
             with self._lock:
@@ -262,6 +280,9 @@ class SimNetFtServer(UdpPeer):
         return w
 
     def _emit_one(self) -> None:
+        if not self._faulty:
+            self._emit_clean()
+            return
         f = self.faults
         r_overflow, r_status, r_drop, r_trunc, r_reorder, r_dup = (self._rng.random()
                                                                     for _ in range(6))
@@ -309,6 +330,35 @@ class SimNetFtServer(UdpPeer):
         self._sendto(data)
         if held is not None:
             self._sendto(held[1])
+
+    def _emit_clean(self) -> None:
+        """``_emit_one`` without faults: the record goes into the datagram being filled, which
+        leaves once it holds ``records_per_datagram`` records."""
+        seq, ft_seq = self._rdt_seq, self._ft_seq
+        self._rdt_seq = (seq + 1) % _U32
+        self._ft_seq = (ft_seq + 1) % _U32
+        t = self._k / self.rate_hz
+        self._k += 1
+        raw = self._raw_wrench(t)
+        status = 0
+        if raw is None:
+            counts, status = (0,) * 6, SOURCE_ERROR_STATUS
+        else:
+            counts, saturated = self.calibration.to_counts(
+                [a - b for a, b in zip(raw, self._bias)])
+            if saturated:
+                status |= SATURATION_STATUS
+        with self._lock:
+            self._log.generated += 1
+        self._buffered.append(RdtRecord(seq, ft_seq, status, *counts).encode())
+        if len(self._buffered) >= self.records_per_datagram:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Send the records of the datagram being filled, if any."""
+        if self._buffered:
+            data, self._buffered = b''.join(self._buffered), []
+            self._sendto(data)
 
     def _sendto(self, data: bytes) -> None:
         if self._client is None:

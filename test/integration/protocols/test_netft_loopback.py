@@ -9,6 +9,7 @@ import pytest
 from wind_shaper.protocols.netft import (NetFtCalibration, RdtRecord, RdtSequenceTracker,
                                               decode_records, encode_records)
 from wind_shaper.io import LinkConfigError, NetFtClient, TransportError
+from wind_shaper.protocols.errors import ProtocolConfigError
 from wind_shaper.sim.netft_server import NetFtFaults, SimNetFtServer
 
 TOP = 2**32
@@ -117,6 +118,30 @@ def test_records_after_a_stall_carry_the_values_of_their_sequence_numbers(rig, w
         expected = wrench(((x.rdt_sequence - 1) % TOP) / RATE)
         assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, expected)), \
             (x.rdt_sequence, first)
+
+
+def test_buffered_records_arrive_whole_in_order_and_stamped_by_their_sequence(rig, wait_for):
+    """RDT buffering (several records per datagram, as a Net F/T can be set to send): every
+    record arrives once, in order, with its own sample time's values, in a tenth as many
+    datagrams; a stream stopped mid-datagram still sends the records it had."""
+    server, client, got = rig(records_per_datagram=10)
+    client.start(sample_count=995)              # not a multiple of 10: the last datagram is short
+    assert server.wait_idle(5.0, min_generated=995)
+    log = server.fault_log()
+    assert wait_for(lambda: client.stats.accepted == 995, 2.0), client.stats
+    assert log.datagrams_sent == 100 and client.stats.datagrams == 100
+    assert client.stats.lost == 0 and client.stats.out_of_order == 0
+    seqs = [x.rdt_sequence for x in got.samples]
+    assert seqs == list(range(1, 996))
+    for x in got.samples:
+        assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, wrench((x.rdt_sequence - 1) / RATE)))
+
+
+def test_buffering_and_fault_injection_are_refused_together_with_the_reason():
+    with pytest.raises(ProtocolConfigError, match='records_per_datagram 1 with faults'):
+        SimNetFtServer(wrench, faults=NetFtFaults(drop_probability=0.1), records_per_datagram=5)
+    with pytest.raises(ProtocolConfigError, match='whole number in 1..40'):
+        SimNetFtServer(wrench, records_per_datagram=0)
 
 
 def test_decode_rate_of_the_pure_path_beats_the_sensor():
