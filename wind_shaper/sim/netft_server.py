@@ -279,14 +279,9 @@ class SimNetFtServer(UdpPeer):
             return None
         return w
 
-    def _emit_one(self) -> None:
-        if not self._faulty:
-            self._emit_clean()
-            return
-        f = self.faults
-        r_overflow, r_status, r_drop, r_trunc, r_reorder, r_dup = (self._rng.random()
-                                                                    for _ in range(6))
-        cut = self._rng.randint(1, 35)
+    def _next_sample(self) -> tuple:
+        """(rdt_sequence, ft_sequence, status, counts) of the next sample, its sequence numbers
+        and sample time used up."""
         seq, ft_seq = self._rdt_seq, self._ft_seq
         self._rdt_seq = (seq + 1) % _U32
         self._ft_seq = (ft_seq + 1) % _U32
@@ -301,6 +296,17 @@ class SimNetFtServer(UdpPeer):
                 [a - b for a, b in zip(raw, self._bias)])
             if saturated:
                 status |= SATURATION_STATUS
+        return seq, ft_seq, status, counts
+
+    def _emit_one(self) -> None:
+        if not self._faulty:
+            self._emit_clean()
+            return
+        f = self.faults
+        r_overflow, r_status, r_drop, r_trunc, r_reorder, r_dup = (self._rng.random()
+                                                                    for _ in range(6))
+        cut = self._rng.randint(1, 35)
+        seq, ft_seq, status, counts = self._next_sample()
         log = self._log
         with self._lock:
             log.generated += 1
@@ -334,20 +340,7 @@ class SimNetFtServer(UdpPeer):
     def _emit_clean(self) -> None:
         """``_emit_one`` without faults: the record goes into the datagram being filled, which
         leaves once it holds ``records_per_datagram`` records."""
-        seq, ft_seq = self._rdt_seq, self._ft_seq
-        self._rdt_seq = (seq + 1) % _U32
-        self._ft_seq = (ft_seq + 1) % _U32
-        t = self._k / self.rate_hz
-        self._k += 1
-        raw = self._raw_wrench(t)
-        status = 0
-        if raw is None:
-            counts, status = (0,) * 6, SOURCE_ERROR_STATUS
-        else:
-            counts, saturated = self.calibration.to_counts(
-                [a - b for a, b in zip(raw, self._bias)])
-            if saturated:
-                status |= SATURATION_STATUS
+        seq, ft_seq, status, counts = self._next_sample()
         with self._lock:
             self._log.generated += 1
         self._buffered.append(RdtRecord(seq, ft_seq, status, *counts).encode())
