@@ -28,6 +28,11 @@ from .requests import check_hold_request
 DEFAULT_TOLERANCE_M, DEFAULT_SAMPLES, DEFAULT_TIMEOUT_S = 0.01, 20, 120.0
 #: Pose rate assumed for the recording's time limit (mocap runs at 100 Hz) [Hz].
 MIN_POSE_HZ = 10.0
+#: How long the estimator goes on collecting after the last pose a point needs, before its
+#: estimate [s]: force reaches it later than the poses (blocks of 20 samples, a sensor's RDT
+#: buffering, a busy host), and a point records only 0.2 s of poses at 100 Hz: a CI run saw a
+#: point whose 23 poses had 20 force samples beside them, all after the last pose.
+FORCE_CATCH_UP_S = 0.3
 
 
 @dataclass(frozen=True)
@@ -50,8 +55,8 @@ class HeldTarget:
     def time_limit(self, service_timeout_s: float, apply_timeout_s: float, settle_s: float) -> float:
         """The longest the whole point may take [s]: placing, recording at MIN_POSE_HZ, and the
         rig's own waits."""
-        return (self.wait_s + self.samples / MIN_POSE_HZ + 4 * service_timeout_s + apply_timeout_s
-                + settle_s)
+        return (self.wait_s + self.samples / MIN_POSE_HZ + FORCE_CATCH_UP_S + 4 * service_timeout_s
+                + apply_timeout_s + settle_s)
 
 
 def check_point(limits, setup, fan_names: Sequence[str], pwm: Sequence[float], x: float, y: float,
@@ -178,6 +183,8 @@ async def hold_point(point: HeldTarget, recorder: PointRecorder, ports: PointPor
     got = await ports.wait_for(lambda: recorder.poses >= point.samples or recorder.strays > 0,
                                point.samples / MIN_POSE_HZ + service_timeout_s)
     recorder.recording = False
+    if got and not recorder.strays:
+        await ports.wait_for(lambda: False, FORCE_CATCH_UP_S)   # the force catches up
     answer = await ports.estimate(-1, point.U)   # -1: the estimate belongs to no iteration
     if recorder.strays:
         raise IterationStopped(FAILED, f'the plate left the point while recording '
@@ -191,6 +198,7 @@ async def hold_point(point: HeldTarget, recorder: PointRecorder, ports: PointPor
     return point_result(point, sweep)
 
 
-__all__ = ['DEFAULT_SAMPLES', 'DEFAULT_TIMEOUT_S', 'DEFAULT_TOLERANCE_M', 'MIN_POSE_HZ',
+__all__ = ['DEFAULT_SAMPLES', 'DEFAULT_TIMEOUT_S', 'DEFAULT_TOLERANCE_M', 'FORCE_CATCH_UP_S',
+           'MIN_POSE_HZ',
            'HeldTarget', 'PointPorts', 'PointRecorder', 'PointResult', 'check_point', 'hold_point',
            'point_result']

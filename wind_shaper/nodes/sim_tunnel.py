@@ -6,8 +6,9 @@ Plays the rig so that fan_output, force_sensor and mocap_relay run unchanged aga
   applies [us] are mapped back to PWM fractions with the same channel map as fan_output
   (``fan_names``, ``channels``, ``pwm_min_us``, ``pwm_max_us``) and applied to the plant;
 * an ATI Net F/T RDT server on UDP ``127.0.0.1:netft_port`` (``SimNetFtServer``) streaming at
-  ``netft_rate_hz`` (``netft_records_per_datagram`` records per datagram) the plant's vertical plate force [N] (Fz, sensor frame, positive up) at the
-  plate's current position: the true plate-averaged field plus the simulator's noise model;
+  ``netft_rate_hz`` (``netft_records_per_datagram`` records per datagram) the plant's vertical
+  plate force [N] (Fz, sensor frame, positive up) at the plate's current position: the true
+  plate-averaged field plus the simulator's noise model;
 * ``geometry_msgs/PoseStamped`` of the plate's tracked rigid body on ``/vrpn_mocap/plate/pose``
   at ``mocap_rate_hz`` in the mocap frame (stamped with capture time): pose =
   inverse(tunnel_from_mocap) * plate * inverse(plate_offset), with the noise model's jitter, so

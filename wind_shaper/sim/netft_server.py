@@ -2,11 +2,12 @@
 
 ``SimNetFtServer`` binds a UDP socket (port 0 = a free port; ``port`` tells which) and behaves
 like the sensor: a start request (command 2) streams ``sample_count`` records (0 = until stopped)
-to the address the request came from at ``rate_hz``, paced by a monotonic clock, one record
-per datagram or, with ``records_per_datagram`` > 1, that many back to back in each datagram as
-a Net F/T does with RDT buffering (each datagram leaves when its last record is due) (when the thread is late it sends the records it owes back to back, at most
-``max_batch`` at once; beyond that it skips ahead and counts ``late_skips``); a stop request
-(command 0) stops; a bias request (0x42) zeroes the current reading.
+to the address the request came from at ``rate_hz``, paced by a monotonic clock (when the
+thread is late it sends the records it owes back to back, at most ``max_batch`` at once; beyond
+that it skips ahead and counts ``late_skips``), one record per datagram or, with
+``records_per_datagram`` > 1, that many back to back in each datagram, as a Net F/T does with
+RDT buffering (a datagram leaves when its last record is due); a stop request (command 0)
+stops; a bias request (0x42) zeroes the current reading.
 
 The wrench comes from ``force_source(t)`` -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N m]), with t [s] the
 ideal sample time k / rate_hz since the stream started (k counts skipped records too, so a

@@ -134,7 +134,8 @@ def test_buffered_records_arrive_whole_in_order_and_stamped_by_their_sequence(ri
     seqs = [x.rdt_sequence for x in got.samples]
     assert seqs == list(range(1, 996))
     for x in got.samples:
-        assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, wrench((x.rdt_sequence - 1) / RATE)))
+        expected = wrench((x.rdt_sequence - 1) / RATE)
+        assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, expected))
 
 
 def test_buffering_and_fault_injection_are_refused_together_with_the_reason():

@@ -10,8 +10,9 @@ import pytest
 from wind_shaper.app import Setup
 from wind_shaper.coordination import FAILED, FieldAnswer, IterationStopped
 from wind_shaper.coordination.hold_point import (DEFAULT_SAMPLES, DEFAULT_TIMEOUT_S,
-                                                 DEFAULT_TOLERANCE_M, MIN_POSE_HZ, PointRecorder,
-                                                 check_point, hold_point, point_result)
+                                                 DEFAULT_TOLERANCE_M, FORCE_CATCH_UP_S,
+                                                 MIN_POSE_HZ, PointRecorder, check_point,
+                                                 hold_point, point_result)
 from wind_shaper.core.errors import WindShaperError
 from wind_shaper.core.limits import Limits
 from wind_shaper.core.tunnel import Sweep
@@ -38,7 +39,8 @@ def test_a_point_is_checked_and_zeros_mean_the_defaults(setup):
     assert point.where == '(+0.100, -0.050) m'
     own = a_point(setup, tolerance_m=0.02, samples=5, timeout_s=30.0)
     assert (own.tolerance_m, own.samples, own.wait_s) == (0.02, 5, 30.0)
-    assert own.time_limit(10.0, 10.0, 2.0) == pytest.approx(30.0 + 5 / MIN_POSE_HZ + 40.0 + 12.0)
+    assert own.time_limit(10.0, 10.0, 2.0) == pytest.approx(30.0 + 5 / MIN_POSE_HZ + FORCE_CATCH_UP_S
+                                                            + 40.0 + 12.0)
 
 
 def test_a_bad_point_is_refused_before_any_fan_moves(setup):
