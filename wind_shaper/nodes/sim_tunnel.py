@@ -87,7 +87,7 @@ class SimTunnelParams:
     netft_port: int = param(49152, 'UDP port of the simulated Net F/T on 127.0.0.1 (0 = any free '
                             'port)', low=0, high=65535)
     netft_rate_hz: float = param(1000.0, 'RDT record rate [Hz]', low=1.0, high=7000.0)
-    netft_records_per_datagram: int = param(10, 'RDT records per UDP datagram, as a Net F/T with '
+    netft_records_per_datagram: int = param(1, 'RDT records per UDP datagram, as a Net F/T with '
                                             'RDT buffering sends them (1 = one per datagram)',
                                             low=1, high=40)
     counts_per_force: float = param(1_000_000.0, 'sensor counts per N (same as force_sensor)', low=1.0)
