@@ -141,7 +141,7 @@ class EstimateWorker:
         if pool is not None:
             for proc in list(getattr(pool, '_processes', {}).values()):
                 proc.kill()   # a child stuck in an estimate is not waited for
-            pool.shutdown(wait=False, cancel_futures=True)
+            _abandon(pool)
 
     def run(self, estimator, key_points, streams: StreamSnapshot, required=None, reuse=None,
             peek: bool = False) -> EstimateOutcome:
@@ -173,7 +173,19 @@ class EstimateWorker:
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            _abandon(pool)
+
+
+def _abandon(pool: ProcessPoolExecutor) -> None:
+    """Shut ``pool`` down without waiting, and let the process exit without waiting either
+    for a task still on its way to a worker that reads no more: its queue's feeder thread would
+    block writing into the pipe (the parent holds both ends) and multiprocessing joins it at
+    exit. A CI lane hung so after its last test, the feeder 98 KB into a write; not reproduced
+    since, so this is a precaution the tests do not show."""
+    queue = getattr(pool, '_call_queue', None)
+    if queue is not None:
+        queue.cancel_join_thread()
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 __all__ = ['EstimateOutcome', 'EstimateWorker', 'StreamSnapshot', 'align_and_estimate']
