@@ -199,6 +199,5 @@ async def hold_point(point: HeldTarget, recorder: PointRecorder, ports: PointPor
 
 
 __all__ = ['DEFAULT_SAMPLES', 'DEFAULT_TIMEOUT_S', 'DEFAULT_TOLERANCE_M', 'FORCE_CATCH_UP_S',
-           'MIN_POSE_HZ',
-           'HeldTarget', 'PointPorts', 'PointRecorder', 'PointResult', 'check_point', 'hold_point',
-           'point_result']
+           'MIN_POSE_HZ', 'HeldTarget', 'PointPorts', 'PointRecorder', 'PointResult', 'check_point',
+           'hold_point', 'point_result']
