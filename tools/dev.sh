@@ -251,12 +251,11 @@ cmd_test() {
         export WIND_SHAPER_TEST_LANES=2
         local graph_log=$LOGS/test-graph.log graph_rc=0
         mkdir -p "$LOGS"
-        # Two of the workbench's test modules (CPU only, about 120 s together) run after the
-        # graph tier in lane 1, to even the lanes out: with the unfamiliar-physics ones alone a
-        # fresh clone's lane 2 took 852 s beside lane 1's 770 s. (The workbench's end-to-end
-        # tests ran there too until the graph tier stopped leaving a node behind that kept a
-        # core busy: lane 2 then took 680 s beside lane 1's 757 s, and they moved back.)
-        local moved=(test/unit/workbench/test_unfamiliar_physics.py test/unit/workbench/test_specific.py)
+        # The workbench's unfamiliar-physics tests (CPU only, about 90 s) run after the graph
+        # tier in lane 1, to even the lanes out. (Its end-to-end tests ran there too until the
+        # graph tier stopped leaving a node behind that kept a core busy: lane 2 then took 680 s
+        # beside lane 1's 757 s, and they moved back.)
+        local moved=(test/unit/workbench/test_unfamiliar_physics.py)
         log "lane 1: test/graph, then ${moved[*]} (output: $graph_log, shown when it ends); lane 2: the rest"
         WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q --durations=15 test/graph "${moved[@]}" >"$graph_log" 2>&1 &
         local graph_pid=$!
