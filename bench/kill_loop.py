@@ -52,7 +52,8 @@ class Loop:
         self.up = Up(env, root, '--run-name', 'kill_loop', '--startup-timeout', '60',
                      '--hang-after', '8', '--deaf-after', str(deaf_after), '--max-restarts', '100000',
                      '--set', f'coordinator.sweep_duration_s={SWEEP_S}',
-                     '--set', 'coordinator.settle_s=0.3', '--set', 'coordinator.max_sweeps=5')
+                     '--set', 'coordinator.settle_s=0.3', '--set', 'coordinator.max_sweeps=5',
+                     mocap_rate_hz=None)   # the sim's own pose rate, as `wind-shaper up --sim` runs
         self.pids = node_pids(self.up.wait_line(UP_LINE.pattern, 90))
         self.seen = 0
 

@@ -17,6 +17,11 @@ NODES = ('sim_tunnel', 'fan_output', 'force_sensor', 'mocap_relay', 'field_estim
 UP_LINE = re.compile(r'all (\d+) nodes are up in ([\d.]+) s \(pids: (.*)\)')
 #: the supervisor's line for a restarted node, with its new pid
 RESTART_PID = re.compile(r'wind-shaper up: restarting \S+ \(\d+ of \d+\): pid (\d+)')
+#: the simulated motion capture's pose rate in the graph tier [Hz] (the sim's own default is
+#: 100; the in-process simulator samples at 50): the graph at rest costs rclpy's executor about
+#: 1 ms of CPU per message, and at 50 poses a second it took 49 % of a core instead of 74 %
+#: (one run each, 2026-11-28), which the CPU-bound lane running beside the graph tier gets back
+GRAPH_MOCAP_RATE_HZ = 50.0
 
 
 def alive(pid):
@@ -59,10 +64,12 @@ class Up:
     MAVLink and Net F/T ports are free ones, so a graph someone runs on the default ports (a
     demo) does not collide with the test's."""
 
-    def __init__(self, env, cwd, *args, sim=True, prefix=(), options=()):
-        """sim: start the simulated rig (``--sim``) on free ports; prefix: what runs the command
-        (``ip netns exec HOST`` for a host of its own); options: the command's global options
-        (``--namespace NS``)."""
+    def __init__(self, env, cwd, *args, sim=True, prefix=(), options=(),
+                 mocap_rate_hz=GRAPH_MOCAP_RATE_HZ):
+        """sim: start the simulated rig (``--sim``) on free ports, its motion capture sending
+        ``mocap_rate_hz`` poses a second (None: the sim's own rate); prefix: what runs the
+        command (``ip netns exec HOST`` for a host of its own); options: the command's global
+        options (``--namespace NS``)."""
         missing = [n for n in NODES if not (Path(__file__).resolve().parents[2] / 'wind_shaper'
                                              / 'nodes' / f'{n}.py').is_file()]
         assert not missing, f'node modules missing: {missing}'
@@ -73,6 +80,8 @@ class Up:
                      '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
                      '--set', f'sim_tunnel.netft_port={netft}',
                      '--set', f'force_sensor.sensor_port={netft}']
+            if mocap_rate_hz is not None:
+                ports += ['--set', f'sim_tunnel.mocap_rate_hz={mocap_rate_hz}']
         self.process = subprocess.Popen(
             [*prefix, sys.executable, '-m', 'wind_shaper.cli.main', *options, 'up', *ports, *args],
             cwd=cwd,
