@@ -73,17 +73,17 @@ class Up:
         missing = [n for n in NODES if not (Path(__file__).resolve().parents[2] / 'wind_shaper'
                                              / 'nodes' / f'{n}.py').is_file()]
         assert not missing, f'node modules missing: {missing}'
-        ports = []
+        sim_args = []
         if sim:
             mavlink, netft = free_udp_ports(2)
-            ports = ['--sim', '--set', f'sim_tunnel.mavlink_port={mavlink}',
-                     '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
-                     '--set', f'sim_tunnel.netft_port={netft}',
-                     '--set', f'force_sensor.sensor_port={netft}']
+            sim_args = ['--sim', '--set', f'sim_tunnel.mavlink_port={mavlink}',
+                        '--set', f'fan_output.mavlink_url=udpout:127.0.0.1:{mavlink}',
+                        '--set', f'sim_tunnel.netft_port={netft}',
+                        '--set', f'force_sensor.sensor_port={netft}']
             if mocap_rate_hz is not None:
-                ports += ['--set', f'sim_tunnel.mocap_rate_hz={mocap_rate_hz}']
+                sim_args += ['--set', f'sim_tunnel.mocap_rate_hz={mocap_rate_hz}']
         self.process = subprocess.Popen(
-            [*prefix, sys.executable, '-m', 'wind_shaper.cli.main', *options, 'up', *ports, *args],
+            [*prefix, sys.executable, '-m', 'wind_shaper.cli.main', *options, 'up', *sim_args, *args],
             cwd=cwd,
             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, start_new_session=True)
