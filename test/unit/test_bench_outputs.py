@@ -6,6 +6,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -50,3 +51,27 @@ def test_scale_replot_without_series_says_what_to_run(tmp_path):
     out.write_text(json.dumps({'gp_accuracy': []}))
     with pytest.raises(SystemExit, match='--series'):
         scale.main(['--replot', '--json', str(out), '--plot', str(tmp_path / 'p.png')])
+
+
+def test_a_gap_to_the_flat_start_is_set_against_the_flat_starts_own_gap_on_other_seeds():
+    """The convergence bench's warm-start check: a shipped default behind the flat start by
+    less than the flat start differs from itself between two halves of its seeds is reported
+    as within the seeds' spread; one behind by more, on most seeds, is not."""
+    conv = _load('convergence')
+    rng = np.random.default_rng(0)
+    k = 6
+    steady = 1.0 + 0.002 * rng.random((10, k))              # the flat start, seeds alike
+    spread = steady.copy()
+    spread[5:, 3] *= 1.10                                   # seeds 5-9 10 % worse at k = 3
+    shipped = steady * np.where(np.arange(k) == 2, 1.05, 1.0)   # 5 % behind at k = 2, every seed
+
+    def summary(R):
+        return {'median_ratio': np.median(R, axis=0).tolist(), 'ratio_per_seed': R.tolist()}
+    clear = conv.behind_flat(summary(shipped), summary(steady))
+    assert clear['k'] == 2 and clear['worst'] == pytest.approx(1.05, abs=0.003)
+    assert clear['seeds_behind'] == 10 and clear['self_gap'] < 1.01 and clear['beyond_noise']
+    noisy = conv.behind_flat(summary(shipped), summary(spread))
+    assert noisy['self_gap'] == pytest.approx(1.10, abs=0.01) and not noisy['beyond_noise']
+    assert np.all(np.isnan(conv.seed_half_gap(steady[:3])))   # too few seeds to halve
+    assert conv.behind_flat(summary(shipped[:3]), summary(steady[:3]))['beyond_noise'] is None
+    assert conv.behind_flat(summary(steady), summary(steady))['beyond_noise'] is False
