@@ -526,8 +526,9 @@ def behind_flat(shipped, flat) -> dict:
     """The shipped default against the flat start (both dicts of ``summarise``): the worst
     ratio of their medians at k >= 2, its k, the seeds behind by more than 2 % at that k (the
     same seeds run both), the flat start's own seed-half gap, and whether the worst ratio is
-    beyond both 2 % and that gap (None below 4 seeds). Like the worst ratio, the gap is the largest over k >= 2: the
-    test takes the worst of a dozen iterations, and so does the same method on other seeds."""
+    beyond both 2 % and that gap (None below 4 seeds). Like the worst ratio, the gap is the
+    largest over k >= 2: the test takes the worst of a dozen iterations, and so does the same
+    method on other seeds."""
     r, q = np.asarray(shipped['median_ratio']), np.asarray(flat['median_ratio'])
     if len(r) < 3:
         return {'worst': float('nan'), 'k': None, 'seeds_behind': 0, 'seeds': 0,
@@ -550,12 +551,14 @@ def print_warm_checks(rows):
     where the prior is right (the flat start needs no restart and the warm start is within 5 %
     at k = 0) within 5 % from k = 0 and 3 % from k = 2. With 4 seeds or more, each gap is also
     set against the flat start's own largest gap between its two halves of seeds
-    (``seed_half_gap``, ``behind_flat``): a gap within it is what other seeds could give. Then the field estimate's calibration:
-    z = (estimate - true field) / std at the key points, its RMS and the share outside 2 sigma."""
+    (``seed_half_gap``, ``behind_flat``): a gap within it is what other seeds could give. Then
+    the field estimate's calibration: z = (estimate - true field) / std at the key points, its
+    RMS and the share outside 2 sigma."""
     print('\nShipped default (warm start) against the flat start, medians over seeds: worst '
           'shipped/flat at k >= 2 (the k, the seeds behind there by more than 2 %); the flat '
-          'start\'s own largest gap between its two halves of seeds at k >= 2; k where each first reaches 1.05; '
-          'restarts; relearning; z RMS, share of key points outside 2 sigma (shipped)\n')
+          'start\'s own largest gap between its two halves of seeds at k >= 2; k where each '
+          'first reaches 1.05; restarts; relearning; z RMS, share of key points outside 2 sigma '
+          '(shipped)\n')
     print('| case | worst shipped/flat, k >= 2 | flat\'s own seed-half gap | shipped k to 1.05 | '
           'flat k to 1.05 | restarts | relearned | z RMS | outside 2 sigma |')
     print('|---|---|---|---|---|---|---|---|---|')
