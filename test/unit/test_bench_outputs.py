@@ -1,7 +1,8 @@
 """The benchmark scripts keep each result file to itself: a --source static convergence run writes
 convergence_static.json (not over the plate results), and a scale run merges into scale.json (a
 --gp-accuracy run keeps the --series data that --replot draws). The benchmarks themselves are
-replaced by stubs here."""
+replaced by stubs here. And the convergence bench's verdict on its results: a gap to the flat
+start set against the flat start's own spread over seeds."""
 import json
 import sys
 from pathlib import Path
