@@ -147,8 +147,9 @@ class Harness:
                     n_pose += 1
             send_block()
             if expect_buffered:
-                assert wait_until(lambda: (len(self.node._force), len(self.node._pose))
-                                  == (n_force, n_pose)), 'the node lost stream samples'
+                have = lambda: (len(self.node._force), len(self.node._pose))   # noqa: E731
+                assert wait_until(lambda: have() == (n_force, n_pose)), \
+                    f'the node has (forces, poses) {have()} of {(n_force, n_pose)} published'
 
     def close(self):
         self.stop.set()  # stop spinning before the shutdown (rclpy races otherwise)
