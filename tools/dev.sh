@@ -247,10 +247,11 @@ cmd_test() {
     else
         # The whole suite as three pytest processes at once on the two cores: the graph tier (one
         # graph of node processes at a time: two would make each other's timing the test), the
-        # unit tier and the node, ROS and end-to-end tiers. With two lanes the cores were idle
-        # for a third of the run, as the graph and node tiers wait on real-time sweeps; the unit
-        # tier, CPU-bound and without deadlines, now fills that time at a lower priority (nice),
-        # so the tiers that do keep deadlines get the cores first. Its tests that time child
+        # unit tier and the node, ROS and end-to-end tiers. The graph and node tiers mostly wait
+        # on real-time sweeps (the graph tier alone took 741 s, mostly plate time); the unit
+        # tier, CPU-bound and without deadlines, fills that time at a lower priority (nice), so
+        # the tiers that do keep deadlines get the cores first (fresh clones: 11.8 min against
+        # 14.7-16.4 with two lanes, docs/benchmarks.md). Its tests that time child
         # processes (the supervisor's) run in the third lane. Each lane has its own ROS
         # domains (test/conftest.py).
         export WIND_SHAPER_TEST_LANES=3
