@@ -15,6 +15,8 @@ import pytest
 
 from wind_shaper.core.geometry import TunnelGeometry
 
+from lanes import lane_domain_id
+
 
 @pytest.fixture
 def rig():
@@ -40,9 +42,7 @@ def _stop(process, grace_s=5.0):
 _domain_counter = itertools.count()
 _BASE_DOMAIN = int(os.environ.get('ROS_DOMAIN_ID') or os.getpid() % 100 + 1)
 #: tools/dev.sh test runs the tiers as several pytest processes at once (WIND_SHAPER_TEST_LANES,
-#: 3); lane w takes the ids base + w, base + w + lanes, ..., wrapped within the largest multiple
-#: of the lane count that fits in 1..100, so no two lanes ever share a domain (wrapped at 100
-#: itself, three lanes met after 34 ids: a node test then got a graph's force stream).
+#: 3); each takes domains no other lane has (``lanes.lane_domain_id``).
 _LANES = max(int(os.environ.get('WIND_SHAPER_TEST_LANES') or 1), 1)
 _LANE = int(os.environ.get('WIND_SHAPER_TEST_LANE') or 0) % _LANES
 
@@ -51,8 +51,7 @@ def next_domain_id() -> str:
     """A ROS_DOMAIN_ID no other test of this run has had (the run's base id plus a counter,
     within 1..100, interleaved over the lanes): whatever a test leaves behind cannot reach the
     next."""
-    span = (100 // _LANES) * _LANES
-    return str((_BASE_DOMAIN + _LANE + _LANES * next(_domain_counter)) % span + 1)
+    return str(lane_domain_id(_BASE_DOMAIN, _LANE, _LANES, next(_domain_counter)))
 
 
 if _LANES > 1:   # what runs with the plain environment stays in this lane's domains too
