@@ -251,29 +251,31 @@ cmd_test() {
         # on real-time sweeps (the graph tier alone took 741 s, mostly plate time); the unit
         # tier, CPU-bound and without deadlines, fills that time at a lower priority (nice), so
         # the tiers that do keep deadlines get the cores first (fresh clones: 11.8 min against
-        # 14.7-16.4 with two lanes, docs/benchmarks.md). Its tests that time child
-        # processes (the supervisor's) run in the third lane. Each lane has its own ROS
-        # domains (test/conftest.py).
+        # 14.7-16.4 with two lanes, docs/benchmarks.md). Each lane has its own ROS domains
+        # (test/conftest.py).
         export WIND_SHAPER_TEST_LANES=3
         local graph_log=$LOGS/test-graph.log unit_log=$LOGS/test-unit.log graph_rc=0 unit_rc=0
-        local timed=(test/unit/test_supervisor.py) rest=()
+        # The unit tier's tests that time child processes (the supervisor's) and its slowest file
+        # (the workbench's unfamiliar physics, about 90 s of CPU) run in the third lane, which
+        # otherwise ends first: 356 s beside 674 s for the niced unit tier in one fresh clone.
+        local moved=(test/unit/test_supervisor.py test/unit/workbench/test_unfamiliar_physics.py) rest=()
         mapfile -t rest < <(find test -mindepth 1 -maxdepth 1 \( -type d ! -name graph ! -name unit \
             ! -name __pycache__ -o -type f -name 'test_*.py' \) | sort)
         mkdir -p "$LOGS"
-        log "lane 1: test/graph (output: $graph_log); lane 2: test/unit but ${timed[*]}, niced (output: $unit_log); lane 3: the rest; the first two are shown when they end"
+        log "lane 1: test/graph (output: $graph_log); lane 2: test/unit but ${moved[*]}, niced (output: $unit_log); lane 3: the rest; the first two are shown when they end"
         WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q --durations=15 test/graph >"$graph_log" 2>&1 &
         local graph_pid=$!
         # one BLAS thread: the graph's processes need the cores more than numpy does
         WIND_SHAPER_TEST_LANE=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
-            nice -n 10 "$PY" -m pytest -q --durations=15 test/unit "${timed[@]/#/--ignore=}" >"$unit_log" 2>&1 &
+            nice -n 10 "$PY" -m pytest -q --durations=15 test/unit "${moved[@]/#/--ignore=}" >"$unit_log" 2>&1 &
         local unit_pid=$!
         trap 'kill "$graph_pid" "$unit_pid" 2>/dev/null' EXIT
         WIND_SHAPER_TEST_LANE=2 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
-            "$PY" -m pytest -q --durations=15 "${rest[@]}" "${timed[@]}" || rc=$?
+            "$PY" -m pytest -q --durations=15 "${rest[@]}" "${moved[@]}" || rc=$?
         wait "$unit_pid" || unit_rc=$?
         wait "$graph_pid" || graph_rc=$?
         trap - EXIT
-        log "lane 2 (test/unit but ${timed[*]}):"
+        log "lane 2 (test/unit but ${moved[*]}):"
         cat "$unit_log"
         log "lane 1 (test/graph):"
         cat "$graph_log"
