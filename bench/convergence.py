@@ -284,7 +284,8 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
     length = setup.shaping.make_sweep_length() if short else SweepLength(adaptive=False)
     if short and 'region' in cfg:
         length = replace(length, region={**dict(length.region or {}), 'enabled': cfg['region']})
-    loop = ShapingLoop(tunnel, plant.prior, target_values, rule, setup.shaping.make_estimator(),
+    estimator = setup.shaping.make_estimator(plant.prior)
+    loop = ShapingLoop(tunnel, plant.prior, target_values, rule, estimator,
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error)
     out = {'mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [], 'mismatch': None,

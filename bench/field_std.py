@@ -101,7 +101,7 @@ def run_tunnel(setup: Setup, name: str, seeds, n_commands: int, n_samples: int) 
     kp = setup.geometry.key_points
     on = setup.geometry.fans.enabled
     lo, hi = setup.shaping.u_min + 0.2, setup.shaping.u_max
-    ests = estimators(setup.shaping.make_estimator())
+    ests = estimators(setup.shaping.make_estimator(setup.load_model()))
     z = {k: [] for k in ests}
     err = {k: [] for k in ests}
     cpu = {k: [] for k in [*ests, 'turbulent reuse']}

@@ -145,7 +145,8 @@ def test_a_replayed_sweep_bag_gives_the_field_estimate_the_core_computes_offline
     bag_path = write_sweep_bag(tmp_path / 'sweep', [sim.sweep(300)], fan_names=fan_names,
                                iterations=[3], idle_streams=False, force_rate_hz=FORCE_RATE_HZ)
     (record,) = read_sweep_records(bag_path)
-    offline = setup.shaping.make_estimator().estimate(record.sweep, setup.geometry.key_points)
+    offline = setup.shaping.make_estimator(setup.load_model()).estimate(record.sweep,
+                                                                        setup.geometry.key_points)
 
     # a bag holds the per-sample wrenches: the estimator reads them instead of the blocks
     estimator = ros_process(BIN / 'field_estimator', '--ros-args', '-p', f'config_dir:={config}',

@@ -77,7 +77,7 @@ class FakeRig(Node):
         self.stop = threading.Event()
         self.sweeping = False
         self.fault = None
-        self.estimator = setup.shaping.make_estimator()
+        self.estimator = setup.shaping.make_estimator(setup.load_model())
         self.fans_node = rclpy.create_node('fake_rig_fans', context=context)
         self.applied_pub = self.fans_node.create_publisher(FanCommand, names.FAN_APPLIED,
                                                            qos.LATCHED)

@@ -126,7 +126,7 @@ class ShapingLoop:
         rule (``rule_overrides={'method': 'paper'}`` for Algorithm 1), estimator, samples per
         sweep, sweep length, fan settle time and u0 (unless given)."""
         return cls(tunnel, model, target, shaping.make_rule(**(rule_overrides or {})),
-                   shaping.make_estimator(), u0=shaping.u0 if u0 is None else u0,
+                   shaping.make_estimator(model), u0=shaping.u0 if u0 is None else u0,
                    n_samples=shaping.samples_per_sweep, truth=truth,
                    sweep_length=shaping.make_sweep_length() if sweep_length is None else sweep_length,
                    fan_settle_s=shaping.fan_settle_s, model_error=model_error,

@@ -11,6 +11,7 @@ from typing import Mapping
 from ..core.config import read_yaml, take_section
 from ..core.errors import ConfigError
 from ..estimation import FieldEstimator
+from ..model.length_scale import footprint_length_scale
 from .adaptive import AdaptiveUpdate
 from .sweep_length import SweepLength
 from .update import CommandBounds, PaperUpdate
@@ -76,8 +77,23 @@ class ShapingConfig:
     def make_sweep_length(self) -> SweepLength:
         return take_section(SweepLength, self.sweep, 'shaping.sweep')
 
-    def make_estimator(self) -> FieldEstimator:
-        return take_section(FieldEstimator, self.estimator, 'shaping.estimator')
+    def make_estimator(self, model=None) -> FieldEstimator:
+        """The field estimator of the ``estimator`` section. Its ``max_length_scale`` is a length
+        [m], ``none``, or ``footprint`` (the default): the length the fans' footprints in the
+        prior ``model`` (a model ``Term``) imply (``model.length_scale``); without a model
+        (callers that only read the estimator's coverage settings) no bound."""
+        cfg = dict(self.estimator or {})
+        limit = cfg.pop('max_length_scale', 'footprint')
+        if limit == 'footprint':
+            cfg['max_length_scale'] = footprint_length_scale(model) if model is not None else None
+        elif limit in (None, 'none'):
+            cfg['max_length_scale'] = None
+        elif isinstance(limit, (int, float)) and not isinstance(limit, bool):
+            cfg['max_length_scale'] = limit
+        else:
+            raise ConfigError(f'shaping.estimator.max_length_scale must be footprint, none or a '
+                              f'length [m]; got {limit!r}')
+        return take_section(FieldEstimator, cfg, 'shaping.estimator')
 
 
 def load_shaping(path) -> ShapingConfig:

@@ -387,6 +387,15 @@ class FieldEstimator:
     fit_hyperparameters: bool = False
     length_scale_bounds: tuple = LENGTH_SCALE_BOUNDS
     noise_std_bounds: tuple = NOISE_STD_BOUNDS
+    #: the longest length scale any fit may take [m] (None: length_scale_bounds alone): the
+    #: length the fans' footprints imply (``model.length_scale``), so that an estimate never
+    #: takes the field for smoother than a change of the fans can leave it. Set from the prior
+    #: by ``ShapingConfig.make_estimator`` (``max_length_scale: footprint`` in shaping.yaml).
+    max_length_scale: float | None = None
+    #: turbulent model: above ``max_length_scale`` the fit's likelihood pays a half-normal
+    #: prior in log length of this sd, so that a sweep whose data clearly say longer still
+    #: gets it; 0: a hard bound (the white model's fit always takes it as one)
+    max_length_scale_sd: float = 0.1
     #: turbulent model: the start values of the fit (and the values used when a sweep has fewer
     #: than ``min_fit_samples`` picked samples): absolute noise sd [N], relative noise sd
     #: [fraction of the force], gust share of the noise variance [0..1], gust time [s]; with
@@ -422,6 +431,16 @@ class FieldEstimator:
                 raise ConfigError(f'estimator {name} must be (low, high) with 0 < low <= high; got '
                                   f'{getattr(self, name)}')
             object.__setattr__(self, name, (lo, hi))
+        if self.max_length_scale is not None:
+            cap = self.max_length_scale
+            if not (isinstance(cap, (int, float)) and np.isfinite(cap) and cap > 0):
+                raise ConfigError(f'estimator max_length_scale must be a length > 0 [m] or None; '
+                                  f'got {cap!r}')
+            object.__setattr__(self, 'max_length_scale', float(cap))
+        sd = self.max_length_scale_sd
+        if not (isinstance(sd, (int, float)) and np.isfinite(sd) and sd >= 0):
+            raise ConfigError(f'estimator max_length_scale_sd must be >= 0 (0: a hard bound); '
+                              f'got {sd!r}')
         if not (isinstance(self.fit_run_s, (int, float)) and 0 <= self.fit_run_s <= 600):
             raise ConfigError(f'estimator fit_run_s must be 0 (runs of fit_block samples) or up to '
                               f'600 s; got {self.fit_run_s!r}')
@@ -435,10 +454,27 @@ class FieldEstimator:
                 tile=self.local_block, halo=self.local_halo, max_fit_samples=self.max_fit_samples)
 
     @property
+    def fitted_length_scales(self) -> tuple:
+        """(low, high) [m] of a fitted length scale: ``length_scale_bounds`` with the high end
+        at most ``max_length_scale`` (never below the low end)."""
+        lo, hi = self.length_scale_bounds
+        if self.max_length_scale is not None:
+            hi = max(lo, min(hi, self.max_length_scale))
+        return lo, hi
+
+    @property
+    def length_prior(self) -> tuple | None:
+        """The turbulent fit's soft bound on the length scale, (length [m], sd in log length),
+        or None (no bound, or a hard one in ``fit_bounds``)."""
+        if self.max_length_scale is None or self.max_length_scale_sd == 0:
+            return None
+        return self.max_length_scale, self.max_length_scale_sd
+
+    @property
     def fit_bounds(self) -> dict:
         """The turbulent model's bounds, name -> (low, high)."""
-        return check_bounds({**dict(self.turbulence_bounds or {}),
-                             'length_scale': self.length_scale_bounds})
+        lengths = self.fitted_length_scales if self.length_prior is None else self.length_scale_bounds
+        return check_bounds({**dict(self.turbulence_bounds or {}), 'length_scale': lengths})
 
     def turbulence_start(self, spread: float) -> TurbulenceParameters:
         """The turbulent model's start values; ``spread`` [N]: the forces' sd, the signal sd's
@@ -481,7 +517,8 @@ class FieldEstimator:
                 return gp
             spread = float(np.std(forces)) if forces is not None and len(forces) else 1.0
             return make(self.turbulence_start(spread), self.fit_bounds,
-                        min_fit_samples=self.min_fit_samples, block=self.fit_runs(times))
+                        min_fit_samples=self.min_fit_samples, block=self.fit_runs(times),
+                        length_prior=self.length_prior)
         if local:
             return LocalGaussianProcessField(self.length_scale, self.noise_std, self.signal_std,
                                              self.local_block, self.local_halo)
@@ -490,7 +527,7 @@ class FieldEstimator:
         if self.fit_hyperparameters and positions is not None:
             hp = fit_hyperparameters(positions, forces, length_scale=self.length_scale,
                                      noise_std=self.noise_std, signal_std=self.signal_std,
-                                     length_scale_bounds=self.length_scale_bounds,
+                                     length_scale_bounds=self.fitted_length_scales,
                                      noise_std_bounds=self.noise_std_bounds)
             return GaussianProcessField(hp['length_scale'], hp['noise_std'], hp['signal_std'])
         return GaussianProcessField(self.length_scale, self.noise_std, self.signal_std)

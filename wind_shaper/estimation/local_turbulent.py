@@ -90,8 +90,9 @@ class LocalTurbulentGaussianProcessField(TurbulentGaussianProcessField):
     def __init__(self, start: TurbulenceParameters = TurbulenceParameters(), bounds: Mapping | None = None,
                  fit_parameters: bool = True, min_fit_samples: int = 60, block: int = 80,
                  max_iter: int = 40, tile: float = 0.20, halo: float = 0.15,
-                 max_fit_samples: int = 2000):
-        super().__init__(start, bounds, fit_parameters, min_fit_samples, block, max_iter)
+                 max_fit_samples: int = 2000, length_prior: tuple | None = None):
+        super().__init__(start, bounds, fit_parameters, min_fit_samples, block, max_iter,
+                         length_prior)
         if not (tile > 0 and halo >= 0):
             raise ConfigError(f'local GP needs tile > 0 and halo >= 0 [m]; got {tile}, {halo}')
         if not (isinstance(max_fit_samples, int) and max_fit_samples >= min_fit_samples):
@@ -111,7 +112,8 @@ class LocalTurbulentGaussianProcessField(TurbulentGaussianProcessField):
         self.fit_samples_ = len(subset) if self.fitted_ else 0
         if self.fitted_:
             p, _, self.evaluations_ = fit_turbulence(X[subset], y[subset], t[subset], p, self.bounds,
-                                                     block=self.block, max_iter=self.max_iter)
+                                                     block=self.block, max_iter=self.max_iter,
+                                                     length_prior=self.length_prior)
         self.params_ = p
         return p
 

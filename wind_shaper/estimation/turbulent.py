@@ -238,9 +238,20 @@ def local_level(X, y, t, p: TurbulenceParameters, mean: float, block: int) -> np
     return np.concatenate(out)
 
 
+def _length_penalty(x, prior):
+    """(value, d value / d log length) of the one-sided prior on the length scale: 0 up to the
+    length ``prior[0]`` [m], then a half-normal in log length of sd ``prior[1]``."""
+    if prior is None:
+        return 0.0, 0.0
+    excess = x[0] - np.log(prior[0])
+    if excess <= 0:
+        return 0.0, 0.0
+    return 0.5 * (excess / prior[1]) ** 2, excess / prior[1] ** 2
+
+
 def fit_turbulence(positions, forces, times, start: TurbulenceParameters = TurbulenceParameters(),
                    bounds: Mapping | None = None, *, block: int = 80, max_iter: int = 40,
-                   tolerance: float = 0.05) -> tuple:
+                   tolerance: float = 0.05, length_prior: tuple | None = None) -> tuple:
     """Type-II maximum likelihood of the ``TurbulenceParameters`` on samples: positions (n, 2)
     [m], forces (n,) [N], times (n,) [s]. The likelihood is the product of the likelihoods of
     runs of ``block`` samples consecutive in time (a composite likelihood: a gust and the
@@ -267,14 +278,25 @@ def fit_turbulence(positions, forces, times, start: TurbulenceParameters = Turbu
     args = (_Design(X[take], y[take], t[take]), level[take], y[take] - mean)
     vb = _vector_bounds(bounds)
     x0 = np.clip(_to_vector(start), vb[:, 0], vb[:, 1])
-    first = _nll(x0, *args)
+    def objective(x, *a):
+        value, grad = _nll(x, *a)
+        if value < 1e25:
+            extra, slope = _length_penalty(x, length_prior)
+            value += extra
+            grad = grad.copy()
+            grad[0] += slope
+        return value, grad
+
+    first = objective(x0, *args)
     memo = {x0.tobytes(): first}   # L-BFGS-B asks for the start again: answer from memory
-    sol = minimize(lambda x, *a: memo.pop(x.tobytes(), None) or _nll(x, *a), x0, args=args,
+    sol = minimize(lambda x, *a: memo.pop(x.tobytes(), None) or objective(x, *a), x0, args=args,
                    jac=True, method='L-BFGS-B', bounds=vb,
                    options={'maxiter': max_iter, 'ftol': tolerance / max(abs(first[0]), 1.0),
                             'gtol': 1e-3})
-    p = _from_vector(np.clip(sol.x, vb[:, 0], vb[:, 1])).clipped(bounds)
-    ll = float(-sol.fun - 0.5 * len(y) * np.log(2 * np.pi)) if sol.fun < 1e25 else -np.inf
+    x = np.clip(sol.x, vb[:, 0], vb[:, 1])
+    p = _from_vector(x).clipped(bounds)
+    ll = (float(-(sol.fun - _length_penalty(x, length_prior)[0]) - 0.5 * len(y) * np.log(2 * np.pi))
+          if sol.fun < 1e25 else -np.inf)
     return p, ll, int(sol.nfev)
 
 
@@ -296,7 +318,7 @@ class TurbulentGaussianProcessField:
 
     def __init__(self, start: TurbulenceParameters = TurbulenceParameters(), bounds: Mapping | None = None,
                  fit_parameters: bool = True, min_fit_samples: int = 60, block: int = 80,
-                 max_iter: int = 40):
+                 max_iter: int = 40, length_prior: tuple | None = None):
         if not (isinstance(min_fit_samples, int) and min_fit_samples >= 10):
             raise ConfigError(f'min_fit_samples must be a whole number >= 10; got {min_fit_samples!r}')
         if not (isinstance(block, int) and (block == 0 or block >= 10)):
@@ -308,6 +330,12 @@ class TurbulentGaussianProcessField:
         self.start, self.bounds = start, check_bounds(bounds)
         self.fit_parameters, self.min_fit_samples = bool(fit_parameters), min_fit_samples
         self.block, self.max_iter = block, max_iter
+        if length_prior is not None:
+            length, sd = (float(v) for v in length_prior)
+            if not (length > 0 and sd > 0):
+                raise ConfigError(f'length_prior must be (length [m] > 0, sd > 0); got {length_prior!r}')
+            length_prior = (length, sd)
+        self.length_prior = length_prior
         #: True when the start values are an earlier sweep's fitted ones (``FieldEstimator.make_gp``)
         self.reused_ = False
 
@@ -346,7 +374,8 @@ class TurbulentGaussianProcessField:
         p = self.start.clipped(self.bounds)
         if self.fitted_:
             p, _, self.evaluations_ = fit_turbulence(X, y, t, p, self.bounds, block=self.block,
-                                                     max_iter=self.max_iter)
+                                                     max_iter=self.max_iter,
+                                                     length_prior=self.length_prior)
         self.params_ = p
         return p
 

@@ -92,7 +92,7 @@ class FieldEstimatorNode(Node):
         setup = Setup.load(p.config_dir or None)
         self._key_points = setup.geometry.key_points
         self._fan_names = list(setup.geometry.fans.names)
-        self._estimator = setup.shaping.make_estimator()
+        self._estimator = setup.shaping.make_estimator(self._footprint_model(setup))
         #: a sweep's estimates reuse the hyperparameters fitted at its first one until it has
         #: grown this many times (``shaping.sweep.refit_growth``, as the in-process loop does):
         #: a fit costs a few hundred ms, and the coordinator peeks every couple of seconds
@@ -157,6 +157,18 @@ class FieldEstimatorNode(Node):
                 f'journal: {len(resumed[0])} force and {len(resumed[1])} pose samples')
 
     # -- streams --------------------------------------------------------------------------------------
+    def _footprint_model(self, setup: Setup):
+        """The prior whose fan footprints bound the GP's length scale (``max_length_scale:
+        footprint``); None, with a warning, when the config folder has no readable model yet
+        (commissioning): the estimates then fit the length scale within its bounds alone."""
+        try:
+            return setup.load_model()
+        except WindShaperError as exc:
+            self.get_logger().warning(f'no prior to bound the field estimate\'s length scale by its '
+                                      f'fans\' footprints ({exc}); fitting it within '
+                                      f'shaping.estimator.length_scale_bounds alone')
+            return None
+
     def _on_force(self, msg: WrenchStamped) -> None:
         if self._collecting:
             t, fz = stamp_to_seconds(msg.header.stamp), msg.wrench.force.z

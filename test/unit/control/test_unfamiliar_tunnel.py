@@ -146,7 +146,7 @@ def test_the_restart_needs_the_prior_calibration_error():
 
 def _loop(setup, sim, prior, target, model_error, **rule):
     s = setup.shaping
-    return ShapingLoop(sim, prior, target, s.make_rule(**rule), s.make_estimator(), u0='warm',
+    return ShapingLoop(sim, prior, target, s.make_rule(**rule), s.make_estimator(prior), u0='warm',
                        n_samples=s.samples_per_sweep, sweep_length=s.make_sweep_length(),
                        fan_settle_s=s.fan_settle_s, model_error=model_error)
 

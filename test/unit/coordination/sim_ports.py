@@ -15,7 +15,7 @@ class SimPorts:
 
     def __init__(self, setup, seed=0, refuse=0, cancel_after=None):
         self.sim = setup.make_sim(seed=seed)
-        self.estimator = setup.shaping.make_estimator()
+        self.estimator = setup.shaping.make_estimator(setup.load_model())
         self.key_points = setup.geometry.key_points
         self.states, self.warnings, self.commanded = [], [], []
         self.refuse, self.cancel_after, self.boundaries = refuse, cancel_after, 0
