@@ -387,10 +387,11 @@ class FieldEstimator:
     fit_hyperparameters: bool = False
     length_scale_bounds: tuple = LENGTH_SCALE_BOUNDS
     noise_std_bounds: tuple = NOISE_STD_BOUNDS
-    #: the longest length scale any fit may take [m] (None: length_scale_bounds alone): the
-    #: length the fans' footprints imply (``model.length_scale``), so that an estimate never
-    #: takes the field for smoother than a change of the fans can leave it. Set from the prior
-    #: by ``ShapingConfig.make_estimator`` (``max_length_scale: footprint`` in shaping.yaml).
+    #: the length scale beyond which a fit pays a prior [m] (None: length_scale_bounds alone):
+    #: the length the fans' footprints imply (``model.length_scale``), so that an estimate does
+    #: not take the field for smoother than a change of the fans can leave it unless the sweep
+    #: clearly says so. Set from the prior by ``ShapingConfig.make_estimator``
+    #: (``max_length_scale: footprint`` in shaping.yaml).
     max_length_scale: float | None = None
     #: turbulent model: above ``max_length_scale`` the fit's likelihood pays a half-normal
     #: prior in log length of this sd, so that a sweep whose data clearly say longer still

@@ -259,7 +259,9 @@ def fit_turbulence(positions, forces, times, start: TurbulenceParameters = Turbu
     the exact likelihood). Starts from ``start`` (clipped into the bounds), keeps every value
     inside its bounds (L-BFGS-B on the logs, analytic gradient; stops when an iteration gains
     less than ``tolerance`` [nats] of log likelihood: far below what tells two values apart). Each sample's force level is the blockwise
-    posterior mean at ``start`` (``local_level``). Returns (parameters, log likelihood [nats],
+    posterior mean at ``start`` (``local_level``). ``length_prior`` (length [m], sd): a length
+    scale beyond that length pays a half-normal prior of that sd in log length (the maximum is
+    then a posterior mode). Returns (parameters, log likelihood [nats] without the prior,
     number of likelihood evaluations)."""
     bounds = check_bounds(bounds)
     X = np.asarray(positions, dtype=float).reshape(-1, 2)
@@ -278,6 +280,7 @@ def fit_turbulence(positions, forces, times, start: TurbulenceParameters = Turbu
     args = (_Design(X[take], y[take], t[take]), level[take], y[take] - mean)
     vb = _vector_bounds(bounds)
     x0 = np.clip(_to_vector(start), vb[:, 0], vb[:, 1])
+
     def objective(x, *a):
         value, grad = _nll(x, *a)
         if value < 1e25:

@@ -1,4 +1,4 @@
-"""The length over which the fans can shape the field: the longest scale a field estimate may assume.
+"""The length over which the fans can shape the field: beyond it a field estimate's fit pays a prior.
 
 When the commands change by dU, the force on the plate at z [m, tunnel frame] changes by
 sum_j dU_j phi_j(z), phi_j = dF/dU_j the fan's footprint [N per unit PWM]. With the fans'
@@ -10,8 +10,8 @@ A field estimate that fits a longer length scale to a sweep says the field is sm
 change of the fans leaves it. On a dense fan wall the field's overall shape (the sum of many
 jets) draws the likelihood to such a length: the estimate then rounds off the peak over one fan
 and its std, too small there, does not say so. ``footprint_length_scale`` measures the
-footprints' length on the prior model so that ``FieldEstimator.max_length_scale`` can bound the
-fit by it.
+footprints' length on the prior model; ``FieldEstimator.max_length_scale`` bounds the fit by it
+(softly: a sweep whose data clearly say longer still gets a longer length).
 """
 from __future__ import annotations
 
@@ -24,14 +24,14 @@ _AT_ONE_LENGTH = float(np.exp(-0.5))
 _DENSE_UP_TO = 64
 
 
-def _fall_off(profile_sum: np.ndarray, step: float) -> float | None:
+def _fall_off(autocorrelation: np.ndarray, step: float) -> float | None:
     """The shift [m] at which a normalised autocorrelation (by whole cells, from shift 0) first
     falls to exp(-1/2), interpolated between cells; None when it never does on the grid."""
-    below = np.flatnonzero(profile_sum < _AT_ONE_LENGTH)
+    below = np.flatnonzero(autocorrelation < _AT_ONE_LENGTH)
     if len(below) == 0:
         return None
     s = int(below[0])
-    a0, a1 = profile_sum[s - 1], profile_sum[s]
+    a0, a1 = autocorrelation[s - 1], autocorrelation[s]
     return step * (s - 1 + (a0 - _AT_ONE_LENGTH) / (a0 - a1))
 
 
