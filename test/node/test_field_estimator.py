@@ -1,4 +1,5 @@
 """field_estimator in-process: sweeps of simulated-tunnel force and pose -> the core's field."""
+import shutil
 import threading
 import time
 from dataclasses import replace
@@ -15,6 +16,7 @@ from wind_shaper_msgs.msg import FieldEstimate, ForceBlock  # noqa: E402
 from wind_shaper_msgs.srv import EstimateField, QueryField  # noqa: E402
 
 from wind_shaper.app import Setup  # noqa: E402
+from wind_shaper.core.config import default_config_dir  # noqa: E402
 from wind_shaper.estimation.align import align_sweep  # noqa: E402
 from wind_shaper.storage.journal import load_sweep_samples  # noqa: E402
 from wind_shaper.nodes.field_estimator import FieldEstimatorNode  # noqa: E402
@@ -520,5 +522,29 @@ def test_samples_and_calls_are_taken_while_an_estimate_is_computed(ros_context, 
             assert during, 'the call or the samples waited for the estimate'
         else:
             assert not during, 'the executor answered during its own estimate'
+    finally:
+        h.close()
+
+
+def test_without_a_prior_the_length_scale_is_fitted_within_its_bounds_alone(ros_context, sim, tmp_path):
+    # a config folder with no model file yet (commissioning): the node starts, says so, and
+    # estimates with the length scale bounded by length_scale_bounds only
+    config = tmp_path / 'config'
+    shutil.copytree(default_config_dir(), config)
+    (config / 'model.yaml').unlink()
+    h = Harness(ros_context, tmp_path / 'journal', [Parameter('config_dir', value=str(config))])
+    try:
+        assert h.node._estimator.max_length_scale is None
+        h.begin_sweep()
+        h.publish(*sweep_streams(sim, seed=8))
+        resp = h.estimate_field(iteration=1)
+        assert resp.success, resp.message
+    finally:
+        h.close()
+    # with the shipped prior the same node bounds it by the jets' footprints
+    h = Harness(ros_context, tmp_path / 'journal2')
+    try:
+        assert h.node._estimator.max_length_scale == pytest.approx(
+            Setup.load().load_model().k1.sigma, rel=0.03)
     finally:
         h.close()
