@@ -9,7 +9,10 @@ axis; ``dropout`` is the fraction of samples the mocap loses (position NaN).
 Optional kinds, off by default (the field estimator's noise model is not built around them, so
 they test it on noise it was not designed for; sweeps and ``measure_at``, not the live stream):
 ``gusts: two_scale`` splits the correlated share evenly between AR(1) series of
-``correlation_time`` and of ``slow_time`` [s]; ``tails`` > 2 makes the white share Student-t with
+``correlation_time`` and of ``slow_time`` [s]; ``gusts: von_karman`` makes the correlated share
+broadband turbulence, a von Karman spectrum S(f) ~ (1 + (f / f0)^2)^(-5/6) with f0 = 1 / (2 pi
+slow_time) (eddies up to an integral time ``slow_time`` [s], a -5/3 inertial range above them: no
+single correlation time describes it); ``tails`` > 2 makes the white share Student-t with
 that many degrees of freedom (heavy-tailed turbulence, still unit variance); ``exponent`` != 1
 makes the turbulence sd relative * force_ref * (F / force_ref)^exponent [N]; ``drift`` [N] adds
 a slow zero drift of the sensor: a random walk reaching sd ``drift`` after 20 s.
@@ -46,8 +49,8 @@ class NoiseModel:
     drift: float = 0.0
 
     def __post_init__(self):
-        if self.gusts not in ('ar1', 'two_scale'):
-            raise ConfigError(f'noise gusts must be ar1 or two_scale; got {self.gusts!r}')
+        if self.gusts not in ('ar1', 'two_scale', 'von_karman'):
+            raise ConfigError(f'noise gusts must be ar1, two_scale or von_karman; got {self.gusts!r}')
         if not (self.tails == 0 or self.tails > 2):
             raise ConfigError(f'noise tails must be 0 (Gaussian) or > 2 degrees of freedom; got {self.tails}')
         if not (self.exponent > 0 and self.force_ref > 0):
@@ -85,7 +88,10 @@ class NoiseModel:
             white = rng.standard_t(self.tails, (n, width)) * np.sqrt((self.tails - 2) / self.tails)
         if self.correlated_fraction == 0 or self.correlation_time == 0:
             return white
-        ar = self._ar1(n, dt, self.correlation_time, rng, width)
+        if self.gusts == 'von_karman':
+            ar = self._von_karman(n, dt, self.slow_time, rng, width)
+        else:
+            ar = self._ar1(n, dt, self.correlation_time, rng, width)
         if self.gusts == 'two_scale':
             ar = np.sqrt(0.5) * (ar + self._ar1(n, dt, self.slow_time, rng, width))
         f = self.correlated_fraction
@@ -98,6 +104,19 @@ class NoiseModel:
         start = rng.standard_normal((1, width))  # stationary initial state
         return lfilter([np.sqrt(1 - phi * phi)], [1.0, -phi], rng.standard_normal((n, width)),
                        axis=0, zi=phi * start)[0]
+
+    @staticmethod
+    def _von_karman(n, dt, integral_time, rng, width):
+        """(n, width) unit-variance Gaussian series with a von Karman spectrum (spectral synthesis
+        on a record twice as long, so that its circular wrap stays out of the n samples)."""
+        m = 2 * n
+        f = np.fft.rfftfreq(m, dt)
+        amplitude = (1.0 + (2.0 * np.pi * integral_time * f) ** 2) ** (-5.0 / 12.0)
+        amplitude[0] = 0.0                               # zero mean
+        spectrum = (rng.standard_normal((len(f), width)) + 1j * rng.standard_normal((len(f), width)))
+        series = np.fft.irfft(spectrum * amplitude[:, None], n=m, axis=0)[:n]
+        expected = np.sqrt(2.0 * np.sum(amplitude ** 2) - amplitude[-1] ** 2) / m * np.sqrt(2.0)
+        return series / expected
 
     def forces(self, true: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
         """Noisy forces for a true force array (n,) or (n, k) along time axis 0 [N]."""

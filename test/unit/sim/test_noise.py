@@ -46,6 +46,17 @@ def test_two_scale_gusts_last_longer():
     assert np.std(_draws(two)) == pytest.approx(np.std(_draws(one)), rel=0.15)
 
 
+def test_von_karman_gusts_have_no_single_correlation_time():
+    one = NoiseModel(correlated_fraction=1.0, absolute=0.0)
+    broad = NoiseModel(correlated_fraction=1.0, absolute=0.0, gusts='von_karman', slow_time=0.5)
+    x = np.concatenate([_draws(broad, seed=s) for s in range(4)])
+    assert np.std(x) == pytest.approx(np.std(_draws(one)), rel=0.1)
+    short, long = _autocorr(x, int(0.1 / DT)), _autocorr(x, int(1.0 / DT))
+    # an exponential kernel would give short ** 10 at ten times the lag; the spectrum's
+    # large eddies keep far more, its -5/3 range takes more at short lags than one time scale
+    assert 0.5 < short < 0.9 and long > 2.0 * short ** 10
+
+
 def test_the_exponent_makes_the_turbulence_grow_faster_than_the_force():
     m = NoiseModel(absolute=0.0, exponent=1.5, force_ref=2.5)
     low, high = np.std(_draws(m, force=1.0)), np.std(_draws(m, force=4.0))
