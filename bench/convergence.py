@@ -14,8 +14,10 @@ Methods:
   warm+short  the warm start with sweeps as long as needed (the shipped default)
   warm+region warm+short, and after the first sweep only the region the step changed
 
-Plants (the prior is calibrated on each plant, as a lab would with `wind-shaper calibrate`,
-unless said otherwise):
+Plants (the prior is commissioned on each plant as the commissioning guide says, 6 designed
+moving-plate sweeps with every fan running fitted by `wind-shaper calibrate --data`, unless said
+otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
+fan alone, which tells the prior nothing of how the fans interact):
   nominal          the default 7-fan rig (prior: config/model.yaml)
   radius 0.20      hexagon fans 0.20 m from the axis instead of 0.25 m
   unequal curves   every fan on its own throttle curve (U ** p_j, p_j = 0.75-1.5: sim effect
@@ -40,7 +42,8 @@ Definitions (printed with the table):
                  median [ms]; BLAS on one thread
 
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--plants ...]
-                                   [--methods ...] [--zeta-cache FILE] [--json FILE]
+                                   [--methods ...] [--calibration held|sweeps:N[:SEED]]
+                                   [--zeta-cache FILE] [--json FILE]
 Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick).
 """
 from __future__ import annotations
@@ -153,12 +156,27 @@ def _edited_config(folder: Path, edits: dict) -> Path:
     return folder
 
 
+#: How the calibrated plants' priors are commissioned: 'held' (the paper's held-plate batch,
+#: every fan alone) or 'sweeps:N' (N moving-plate sweeps, every fan off in the first and last
+#: and Latin-hypercube commands between, fitted as `wind-shaper calibrate --data` does;
+#: 'sweeps:N:S' draws the design with seed S, 0 otherwise)
+CALIBRATION = {'how': 'sweeps:6'}
+
+
 def _calibrated(setup: Setup, effects=()) -> tuple[object, float]:
-    """The paper's calibration batch on the plant (seed 0), fitted; saved in the config folder
-    so the warm start reads its error as it would from a lab's model file."""
+    """The plant's prior commissioned on it (seed 0, ``CALIBRATION``); saved in the config
+    folder so the warm start reads its error as it would from a lab's model file."""
     sim = setup.make_sim(seed=0, effects=list(effects_from_config(effects)))
-    fit = calibrate(sim, setup.geometry.fans)
-    save_fit(setup.model_path, fit, source='bench calibration')
+    how = CALIBRATION['how']
+    if how.startswith('sweeps:'):
+        from wind_shaper.model import paper_prior
+        from wind_shaper.workbench.calibrate import calibrate_from_sweeps, save_calibration
+        from wind_shaper.workbench.commands import simulated_sweeps
+        _, n_sweeps, *design_seed = how.split(':')
+        data = simulated_sweeps(sim, int(n_sweeps), seed=int(design_seed[0]) if design_seed else 0)
+        save_calibration(setup.model_path, calibrate_from_sweeps(data, paper_prior(setup.geometry.fans)))
+    else:
+        save_fit(setup.model_path, calibrate(sim, setup.geometry.fans), source='bench calibration')
     return setup.load_model(), setup.model_error()
 
 
@@ -359,6 +377,10 @@ def main(argv=None):
     ap.add_argument('--json', default=None, help='results file (default: bench/out/convergence.json, '
                                                   'or convergence_quick.json with --quick)')
     ap.add_argument('--quick', action='store_true', help='the nominal rig, 2 targets, 2 seeds')
+    ap.add_argument('--calibration', default='sweeps:6', metavar='held|sweeps:N[:SEED]',
+                    help="how the calibrated tunnels' priors are commissioned: the paper's "
+                         "held-plate batch (every fan alone), or N designed moving-plate sweeps "
+                         "with every fan running (as `collect --design lhs` and `calibrate --data`)")
     ap.add_argument('--plants', default=','.join(ALL_PLANTS), help=f'comma-separated, of: {", ".join(ALL_PLANTS)}')
     ap.add_argument('--methods', default=','.join(METHODS))
     ap.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
@@ -375,6 +397,11 @@ def main(argv=None):
     ap.add_argument('--zeta-cache', default=None,
                     help='JSON file to read/write zeta* per case (skips the optimisation when present)')
     args = ap.parse_args(argv)
+    parts = args.calibration.split(':')
+    if not (args.calibration == 'held' or (parts[0] == 'sweeps' and 2 <= len(parts) <= 3
+                                           and all(p.isdigit() for p in parts[1:]) and int(parts[1]) >= 3)):
+        ap.error(f'--calibration must be held, sweeps:N or sweeps:N:SEED with N >= 3; got {args.calibration!r}')
+    CALIBRATION['how'] = args.calibration
     if args.summary_from:
         print_summary(json.loads(Path(args.summary_from).read_text())['cases'])
         return
@@ -423,7 +450,7 @@ def main(argv=None):
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     meta = {'seeds': seeds, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
-            'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
+            'calibration': args.calibration, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))
     print(f'wrote {args.json}')

@@ -76,3 +76,21 @@ def test_a_gap_to_the_flat_start_is_set_against_the_flat_starts_own_gap_on_other
     assert np.all(np.isnan(conv.seed_half_gap(steady[:3])))   # too few seeds to halve
     assert conv.behind_flat(summary(shipped[:3]), summary(steady[:3]))['beyond_noise'] is None
     assert conv.behind_flat(summary(steady), summary(steady))['beyond_noise'] is False
+
+
+@pytest.mark.parametrize('how,source', [('sweeps:4', 'moving-plate sweeps'), ('held', 'bench calibration')])
+def test_a_calibrated_plant_is_commissioned_as_asked(how, source, tmp_path, monkeypatch):
+    conv = _load('convergence')
+    monkeypatch.setitem(conv.CALIBRATION, 'how', how)
+    plant, = conv.make_plants(['radius 0.20'], tmp_path)
+    assert np.isfinite(plant.model_error) and plant.model_error > 0
+    assert source in plant.setup.model_path.read_text()
+
+
+@pytest.mark.parametrize('bad', ['sweeps:2', 'sweeps:six', 'lhs:6', 'sweeps:6:1:2'])
+def test_a_calibration_the_bench_cannot_run_is_refused(bad, tmp_path, monkeypatch, capsys):
+    conv = _load('convergence')
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        conv.main(['--calibration', bad, '--quick'])
+    assert '--calibration must be' in capsys.readouterr().err
