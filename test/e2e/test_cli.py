@@ -59,6 +59,27 @@ def test_calibrate_refits_the_shipped_model(tmp_path):
     np.testing.assert_allclose(fresh(U, kp), shipped(U, kp), atol=0.02)
 
 
+def test_calibrate_on_the_simulator_from_designed_sweeps(tmp_path, capsys):
+    """`calibrate --sim --design lhs:6` commissions as the guide says, in-process: six sweeps with
+    every fan running between two with the fans off, the prior fitted and graded on held-out ones."""
+    import yaml
+    out = tmp_path / 'prior.yaml'
+    assert main(['calibrate', '--sim', '--design', 'lhs:6', '--out', str(out)]) == 0
+    saved = yaml.safe_load(out.read_text())
+    assert saved['fitted_from'].startswith('6 moving-plate sweeps') and 'lhs:6' in saved['fitted_from']
+    assert 0 < saved['heldout_rmse_N'] < 1.0
+    assert 'held-out sweeps' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize('argv,said', [
+    (['--sim', '--design', 'lhs:2'], 'lhs:N with N >= 3'),
+    (['--data', 'runs/x', '--design', 'lhs:6'], '--design goes with --sim')])
+def test_calibrate_refuses_a_design_it_cannot_run(argv, said, tmp_path, capsys):
+    assert main(['calibrate', *argv, '--out', str(tmp_path / 'p.yaml')]) == 2
+    assert said in capsys.readouterr().err
+    assert not (tmp_path / 'p.yaml').exists()
+
+
 def _true_rmse(out):
     return [it['true_rmse_N'] for it in json.loads((out / 'run.json').read_text())['iterations']]
 

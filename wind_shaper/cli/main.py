@@ -87,7 +87,13 @@ def _cmd_calibrate(args) -> int:
         print('wind-shaper calibrate needs one source: --data RUN_OR_BAG (moving-plate sweeps at '
               'varied commands, e.g. from `wind-shaper collect --design lhs:6 --out NAME`), --held '
               '(the held-plate batch, guided through the node graph) or --sim (that batch on the '
-              'built-in simulated tunnel, in-process)', file=sys.stderr)
+              'built-in simulated tunnel, in-process; with --design lhs:6 designed sweeps there '
+              'instead)', file=sys.stderr)
+        return 2
+    if args.design and not args.sim:
+        print('wind-shaper calibrate: --design goes with --sim (the simulated tunnel, in-process); on '
+              'the rig record the design with `wind-shaper collect --design SPEC --out NAME`, then '
+              '`wind-shaper calibrate --data runs/NAME`', file=sys.stderr)
         return 2
     setup = Setup.load(args.config, args.disable)
     if args.data:
@@ -95,6 +101,8 @@ def _cmd_calibrate(args) -> int:
     if args.held:
         from .held import run_held
         return run_held(setup, args)
+    if args.design:
+        return _calibrate_on_sim_from_design(setup, args)
     fit = calibrate(setup.make_sim(seed=args.seed), setup.geometry.fans)
     out = args.out or setup.model_path
     save_fit(out, fit, source=f'simulated tunnel, seed {args.seed}')
@@ -103,14 +111,33 @@ def _cmd_calibrate(args) -> int:
 
 
 def _calibrate_from_data(setup, args) -> int:
+    from ..workbench.data import load_sweeps
+    data = load_sweeps(args.data, setup.geometry.fans.names)
+    return _fit_and_report(setup, args, data, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml')
+
+
+def _calibrate_on_sim_from_design(setup, args) -> int:
+    """``calibrate --sim --design SPEC``: the designed sweeps on the simulated tunnel, in-process
+    (as `collect --design SPEC` and `calibrate --data` would through the graph), then the fit."""
+    from ..experiment.design import DesignError, make_design
+    from ..workbench.data import from_sim
+    fans = setup.geometry.fans
+    try:
+        design = make_design(args.design, fans, setup.shaping.u_min, setup.shaping.u_max, seed=args.seed)
+    except DesignError as exc:
+        print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
+        return 2
+    data = from_sim(setup.make_sim(seed=args.seed), design.commands, n_samples=setup.shaping.samples_per_sweep,
+                    source=f'simulated tunnel, seed {args.seed}, design {args.design}')
+    return _fit_and_report(setup, args, data, args.out or setup.model_path)
+
+
+def _fit_and_report(setup, args, data, out) -> int:
+    """Fit the prior (``--model`` or the paper's) on ``data``, write it to ``out``, say how good."""
     from ..model import paper_prior
     from ..workbench.calibrate import calibrate_from_sweeps, save_calibration
-    from ..workbench.data import load_sweeps
-    fans = setup.geometry.fans
-    prior = setup.load_model(args.model) if args.model else paper_prior(fans)
-    data = load_sweeps(args.data, fans.names)
+    prior = setup.load_model(args.model) if args.model else paper_prior(setup.geometry.fans)
     cal = calibrate_from_sweeps(data, prior)
-    out = args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml'
     save_calibration(out, cal)
     print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {data.source}')
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
@@ -181,10 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help='sweeps at varied commands: an experiment folder or bag of `wind-shaper '
                         'collect`, a run folder or a shape report')
     p.add_argument('--model', type=Path, default=None,
-                   help='with --data: the model whose free parameters are fitted (default: the '
-                        'paper\'s prior)')
+                   help='with --data or --sim --design: the model whose free parameters are fitted '
+                        '(default: the paper\'s prior)')
     p.add_argument('--sim', action='store_true', help='collect the held-plate batch on the simulated '
                                                       'tunnel and fit the paper\'s prior to it')
+    p.add_argument('--design', default=None, metavar='SPEC',
+                   help='with --sim: sweep the simulated tunnel at a designed experiment instead (lhs:N, '
+                        'single-off, or a CSV/YAML design, as `collect --design`) and fit the prior to '
+                        'those sweeps, every fan running; the recommended commissioning (lhs:6)')
     p.add_argument('--out', type=Path, default=None,
                    help='model file to write (default: models/<data or batch name>.yaml with '
                         '--data or --held, config/model.yaml with --sim)')
