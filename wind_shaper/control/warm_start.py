@@ -35,6 +35,11 @@ MISMATCH_FACTOR = 3.0
 #: noise (both as variances per key point) while it leaves at least half the fans idle (what it
 #: claims of them is then untested): the run then starts again wider.
 PROMISE_FACTOR = 3.0
+#: What to do about a prior that does not describe the tunnel: a prior fitted on sweeps with
+#: every fan running knows how they act on each other (the held-plate batch runs each alone)
+RECALIBRATE = ('when you can, recalibrate it from designed sweeps with every fan running '
+               '(`wind-shaper collect --design lhs:6 --out NAME`, then `wind-shaper calibrate '
+               '--data runs/NAME`)')
 
 
 @dataclass(frozen=True)
@@ -64,13 +69,13 @@ class PredictionCheck:
                     f'estimate noise allow up to {np.sqrt(self.allowed_mse):.3f} N): the prior does not '
                     f'match this tunnel and its optimum is not the tunnel\'s, so the run starts again '
                     f'from the wider start and learns the tunnel from there (the sweep at the prior\'s '
-                    f'optimum still counts as data); recalibrate with `wind-shaper calibrate` when you can')
+                    f'optimum still counts as data); {RECALIBRATE}')
         if self.mismatch:
             return (f'the first sweep differs from the prior\'s prediction by {self.rms_difference:.3f} N '
                     f'RMS, {self.ratio:.1f} x what the prior\'s error and the estimate noise allow '
                     f'({self.expected:.3f} N): the prior does not match this tunnel (another '
                     f'tunnel\'s model, a fan changed?). The update now leans on the measured field '
-                    f'(first step halved); recalibrate with `wind-shaper calibrate` when you can')
+                    f'(first step halved); {RECALIBRATE}')
         return (f'the first sweep agrees with the prior\'s prediction: {self.rms_difference:.3f} N RMS '
                 f'difference, {self.ratio:.1f} x the expected {self.expected:.3f} N')
 

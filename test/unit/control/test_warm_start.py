@@ -63,7 +63,7 @@ def test_the_first_sweep_is_checked_against_the_prediction(setup):
     assert not agree.mismatch and 'agrees' in agree.text()
     far = ws.compare(ws.predicted + 1.0, std)   # 1 N everywhere: 4.9 x what 0.2 N allows
     assert far.mismatch and far.ratio == pytest.approx(1.0 / np.hypot(0.2, 0.05))
-    assert 'does not match this tunnel' in far.text()
+    assert 'does not match this tunnel' in far.text() and 'collect --design lhs:6' in far.text()
     # a mismatch halves the first step's trust radius; an agreement leaves the rule as it is
     rule = setup.shaping.make_rule()
     assert first_step_rule(rule, far).radius == pytest.approx(rule.radius / 2)
