@@ -7,6 +7,10 @@ fans do.
   so every fan turns slower when the others run harder.
 * ``RecirculationCore``: the edge jets drive a recirculating bubble over the middle of the
   tunnel, a deficit there that grows with the edge fans' mean thrust and widens with it.
+* ``JetPairing``: two neighbouring edge jets running alike entrain each other and land closer
+  together; a much stronger neighbour does not pair with a weak one.
+* ``StallDip``: an axial fan stalls at part load, so each fan's curve dips there, by its own
+  depth (not a coupling, but a curve no polynomial of the prior holds).
 
 Positions [m, tunnel frame], thrusts and densities [N], commands [fraction 0..1].
 """
@@ -80,6 +84,67 @@ class RecirculationCore(HiddenEffect):
                                   np.array([w]), np.full(1, -1))]
 
 
-register_effects(SupplySag, RecirculationCore)
+@dataclass(frozen=True)
+class JetPairing(HiddenEffect):
+    """Neighbouring edge jets that run alike entrain the air between them and land closer
+    together. Each edge jet moves towards each of its two neighbours on the ring by
+
+        pull * (min(T_i, T_j) / max(T_i, T_j)) * min(T_i, T_j) / (min(T_i, T_j) + thrust_ref)   [m],
+
+    T the two fans' thrusts [N]: equal strong jets pair the most, a jet beside a much stronger
+    or an idle one stays where it is. Edge fans: fans off the axis, ordered by their angle."""
+
+    pull: float = 0.04
+    thrust_ref: float = 3.0
+    name: ClassVar[str] = 'jet_pairing'
+    priority: ClassVar[float] = 0.6   # after the central jet's deflection, before bridges
+    bounds: ClassVar = {'pull': (0.0, 0.2), 'thrust_ref': (0.1, 100.0)}
+
+    def sources(self, groups, thrust, geometry):
+        pos = np.asarray(geometry.fans.positions, dtype=float)
+        edge = np.flatnonzero((np.hypot(pos[:, 0], pos[:, 1]) > 1e-3) & geometry.fans.enabled)
+        if self.pull == 0 or len(edge) < 2:
+            return groups
+        ring = edge[np.argsort(np.arctan2(pos[edge, 1], pos[edge, 0]))]
+        t = np.maximum(np.asarray(thrust, dtype=float), 0.0)
+        move = np.zeros_like(pos)
+        for i, j in zip(ring, np.roll(ring, -1)):
+            lo, hi = min(t[i], t[j]), max(t[i], t[j])
+            if hi <= 0 or i == j:
+                continue
+            size = self.pull * (lo / hi) * lo / (lo + self.thrust_ref)
+            towards = (pos[j] - pos[i]) / max(float(np.hypot(*(pos[j] - pos[i]))), 1e-9)
+            move[i] += size * towards
+            move[j] -= size * towards
+        for g in groups:
+            jet = g.fan >= 0
+            g.centres[jet] = g.centres[jet] + move[g.fan[jet]]
+        return groups
+
+
+@dataclass(frozen=True)
+class StallDip(HiddenEffect):
+    """Rotating stall at part load: fan j runs at
+
+        U_eff,j = U_j * (1 - depth_j * exp(-((U_j - at) / width)^2)),
+
+    depth_j drawn once per fan in [0.5, 1.5] x ``depth`` (seeded by ``seed``), so each fan's
+    curve dips by its own amount around the command ``at``."""
+
+    depth: float = 0.2
+    at: float = 0.35
+    width: float = 0.08
+    seed: int = 0
+    name: ClassVar[str] = 'stall_dip'
+    priority: ClassVar[int] = 4   # on the speed the motor reaches, after a supply's sag (3)
+    bounds: ClassVar = {'depth': (0.0, 0.6), 'at': (0.05, 0.95), 'width': (0.01, 0.5)}
+
+    def command(self, u, geometry):
+        n = len(u)
+        depth = self.depth * np.random.default_rng([int(self.seed), 0x57A11]).uniform(0.5, 1.5, n)
+        return u * (1.0 - depth * np.exp(-((u - self.at) / self.width) ** 2))
+
+
+register_effects(SupplySag, RecirculationCore, JetPairing, StallDip)
 
 __all__ = ['SupplySag', 'RecirculationCore']

@@ -233,6 +233,30 @@ def test_jet_deflection_moves_edge_jets_inwards_only_with_the_central_fan_on(per
     assert np.allclose(radii, 0.25 - 0.04 * t_c / (t_c + 3.0))
 
 
+def test_jet_pairing_pulls_alike_neighbours_together_and_leaves_a_lone_jet(perfect, rig):
+    from wind_shaper.sim import JetPairing
+    sim = perfect.with_effects([JetPairing(pull=0.04, thrust_ref=3.0)])
+    ring = np.array([0.5] * 6 + [0.0])
+    t = perfect.thrust(ring)[:6]                 # the two groups alternate round the ring
+    lo, hi = t.min(), t.max()
+    moved = np.concatenate([g.centres[g.fan < 6] for g in sim.state(ring).groups if (g.fan >= 0).any()])
+    # each jet is pulled 0.04 (lo / hi) lo / (lo + 3) towards both neighbours, 60 degrees off
+    # its inward radius: the tangential parts cancel, the inward ones add up to one pull
+    assert np.allclose(np.hypot(*moved.T), 0.25 - 0.04 * (lo / hi) * lo / (lo + 3.0), atol=1e-6)
+    lone = np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.6])  # neighbours idle: nothing to pair with
+    assert np.allclose(sim.true_field(lone, rig.key_points), perfect.true_field(lone, rig.key_points))
+
+
+def test_stall_dip_lowers_each_fan_by_its_own_depth_at_part_load(rig):
+    from wind_shaper.sim import StallDip
+    dip = StallDip(depth=0.2, at=0.35, width=0.08, seed=4)
+    at = dip.command(np.full(7, 0.35), rig) / 0.35
+    assert np.all((at >= 1 - 0.3 - 1e-9) & (at <= 1 - 0.1 + 1e-9)) and np.ptp(at) > 0.05
+    far = dip.command(np.full(7, 0.8), rig)
+    assert np.allclose(far, 0.8, atol=1e-6)
+    assert not np.allclose(StallDip(seed=5).command(np.full(7, 0.35), rig), dip.command(np.full(7, 0.35), rig))
+
+
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
     sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])
