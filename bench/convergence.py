@@ -164,9 +164,9 @@ def _edited_config(folder: Path, edits: dict) -> Path:
 
 
 #: How the calibrated plants' priors are commissioned: 'held' (the paper's held-plate batch,
-#: every fan alone) or 'sweeps:N' (N moving-plate sweeps, every fan off in the first and last
-#: and Latin-hypercube commands between, fitted as `wind-shaper calibrate --data` does;
-#: 'sweeps:N:S' draws the design with seed S, 0 otherwise)
+#: every fan alone) or 'sweeps:N' (the design lhs:N within the shaping bounds, every fan off in
+#: the first and last sweep, swept and fitted as `collect --design lhs:N` and `calibrate --data`
+#: do: ``app.commission_on_sim``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
 CALIBRATION = {'how': 'sweeps:6'}
 
 
@@ -176,12 +176,11 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float]:
     sim = setup.make_sim(seed=0, effects=list(effects_from_config(effects)))
     how = CALIBRATION['how']
     if how.startswith('sweeps:'):
-        from wind_shaper.model import paper_prior
-        from wind_shaper.workbench.calibrate import calibrate_from_sweeps, save_calibration
-        from wind_shaper.workbench.commands import simulated_sweeps
+        from wind_shaper.app import commission_on_sim
+        from wind_shaper.workbench.calibrate import save_calibration
         _, n_sweeps, *design_seed = how.split(':')
-        data = simulated_sweeps(sim, int(n_sweeps), seed=int(design_seed[0]) if design_seed else 0)
-        save_calibration(setup.model_path, calibrate_from_sweeps(data, paper_prior(setup.geometry.fans)))
+        save_calibration(setup.model_path, commission_on_sim(
+            setup, sim, f'lhs:{n_sweeps}', seed=int(design_seed[0]) if design_seed else 0))
     else:
         save_fit(setup.model_path, calibrate(sim, setup.geometry.fans), source='bench calibration')
     return setup.load_model(), setup.model_error()

@@ -119,27 +119,30 @@ def _calibrate_from_data(setup, args) -> int:
 def _calibrate_on_sim_from_design(setup, args) -> int:
     """``calibrate --sim --design SPEC``: the designed sweeps on the simulated tunnel, in-process
     (as `collect --design SPEC` and `calibrate --data` would through the graph), then the fit."""
-    from ..experiment.design import DesignError, make_design
-    from ..workbench.data import from_sim
-    fans = setup.geometry.fans
+    from ..app import commission_on_sim
+    from ..experiment.design import DesignError
     try:
-        design = make_design(args.design, fans, setup.shaping.u_min, setup.shaping.u_max, seed=args.seed)
+        cal = commission_on_sim(setup, setup.make_sim(seed=args.seed), args.design, seed=args.seed,
+                                model=setup.load_model(args.model) if args.model else None)
     except DesignError as exc:
         print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
         return 2
-    data = from_sim(setup.make_sim(seed=args.seed), design.commands, n_samples=setup.shaping.samples_per_sweep,
-                    source=f'simulated tunnel, seed {args.seed}, design {args.design}')
-    return _fit_and_report(setup, args, data, args.out or setup.model_path)
+    return _report_calibration(cal, args.out or setup.model_path)
 
 
 def _fit_and_report(setup, args, data, out) -> int:
     """Fit the prior (``--model`` or the paper's) on ``data``, write it to ``out``, say how good."""
     from ..model import paper_prior
-    from ..workbench.calibrate import calibrate_from_sweeps, save_calibration
+    from ..workbench.calibrate import calibrate_from_sweeps
     prior = setup.load_model(args.model) if args.model else paper_prior(setup.geometry.fans)
-    cal = calibrate_from_sweeps(data, prior)
+    return _report_calibration(calibrate_from_sweeps(data, prior), out)
+
+
+def _report_calibration(cal, out) -> int:
+    """Write the calibrated model file to ``out`` and print the fit, its grades and the next step."""
+    from ..workbench.calibrate import save_calibration
     save_calibration(out, cal)
-    print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {data.source}')
+    print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {cal.source}')
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
           f'({", ".join(cal.held_out)}) of a fit on the others')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
