@@ -120,8 +120,8 @@ UNFAMILIAR = {
         {'name': 'drag_law', 'exponent': 0.25, 'force_ref': 2.0, 'floor': 0.05},
         {'name': 'jet_deflection', 'pull': 0.04, 'thrust_ref': 3.0}],
     # written after the benchmark commissioned its priors from designed sweeps, with two effects
-    # new then, and run once: neighbouring jets that pair when they run alike, a part-load
-    # stall in every fan's curve, a sagging supply and a tilted fan
+    # new then, and tuned on nothing: neighbouring jets that pair when they run alike, a
+    # part-load stall in every fan's curve, a sagging supply and a tilted fan
     'pairing + stall + sag': [
         {'name': 'jet_pairing', 'pull': 0.05, 'thrust_ref': 3.0},
         {'name': 'stall_dip', 'depth': 0.25, 'at': 0.35, 'width': 0.08, 'seed': 3},
