@@ -166,7 +166,7 @@ def _edited_config(folder: Path, edits: dict) -> Path:
 #: How the calibrated plants' priors are commissioned: 'held' (the paper's held-plate batch,
 #: every fan alone) or 'sweeps:N' (the design lhs:N within the shaping bounds, every fan off in
 #: the first and last sweep, swept and fitted as `collect --design lhs:N` and `calibrate --data`
-#: do: ``app.commission_on_sim``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
+#: do: ``workbench.calibrate.commission_from_design``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
 CALIBRATION = {'how': 'sweeps:6'}
 
 
@@ -176,11 +176,12 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float]:
     sim = setup.make_sim(seed=0, effects=list(effects_from_config(effects)))
     how = CALIBRATION['how']
     if how.startswith('sweeps:'):
-        from wind_shaper.app import commission_on_sim
-        from wind_shaper.workbench.calibrate import save_calibration
+        from wind_shaper.workbench.calibrate import commission_from_design, save_calibration
         _, n_sweeps, *design_seed = how.split(':')
-        save_calibration(setup.model_path, commission_on_sim(
-            setup, sim, f'lhs:{n_sweeps}', seed=int(design_seed[0]) if design_seed else 0))
+        shaping = setup.shaping
+        save_calibration(setup.model_path, commission_from_design(
+            sim, f'lhs:{n_sweeps}', shaping.u_min, shaping.u_max, n_samples=shaping.samples_per_sweep,
+            seed=int(design_seed[0]) if design_seed else 0))
     else:
         save_fit(setup.model_path, calibrate(sim, setup.geometry.fans), source='bench calibration')
     return setup.load_model(), setup.model_error()

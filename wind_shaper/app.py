@@ -93,22 +93,6 @@ def calibrate(tunnel, fans, plan: CalibrationPlan = CalibrationPlan()) -> ModelF
     return fit_model(paper_prior(fans), data)
 
 
-def commission_on_sim(setup: 'Setup', tunnel, design_spec: str, *, seed: int = 0, model: Term | None = None):
-    """Commission a prior on a (simulated) ``tunnel`` in-process, as a lab does on its rig with
-    `wind-shaper collect --design SPEC` and `calibrate --data`: one sweep at each command of the
-    design ``design_spec`` (``lhs:6``; within the shaping bounds, seeded by ``seed``), then
-    ``model`` (the paper's prior by default) fitted on them and graded on held-out sweeps.
-    Returns the ``workbench.calibrate.Calibration``; DesignError for a design it cannot run."""
-    from .experiment.design import make_design
-    from .workbench.calibrate import calibrate_from_sweeps
-    from .workbench.data import from_sim
-    fans = setup.geometry.fans
-    design = make_design(design_spec, fans, setup.shaping.u_min, setup.shaping.u_max, seed=seed)
-    data = from_sim(tunnel, design.commands, n_samples=setup.shaping.samples_per_sweep,
-                    source=f'simulated tunnel, seed {seed}, design {design_spec}')
-    return calibrate_from_sweeps(data, model if model is not None else paper_prior(fans))
-
-
 def save_fit(path, fit: ModelFit, source: str) -> Path:
     return save_model(path, fit.model, fitted_from=source, rmse_N=round(fit.rmse, 5),
                       n_samples=fit.n, fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),

@@ -119,11 +119,13 @@ def _calibrate_from_data(setup, args) -> int:
 def _calibrate_on_sim_from_design(setup, args) -> int:
     """``calibrate --sim --design SPEC``: the designed sweeps on the simulated tunnel, in-process
     (as `collect --design SPEC` and `calibrate --data` would through the graph), then the fit."""
-    from ..app import commission_on_sim
     from ..experiment.design import DesignError
+    from ..workbench.calibrate import commission_from_design
     try:
-        cal = commission_on_sim(setup, setup.make_sim(seed=args.seed), args.design, seed=args.seed,
-                                model=setup.load_model(args.model) if args.model else None)
+        cal = commission_from_design(setup.make_sim(seed=args.seed), args.design, setup.shaping.u_min,
+                                     setup.shaping.u_max, n_samples=setup.shaping.samples_per_sweep,
+                                     seed=args.seed,
+                                     model=setup.load_model(args.model) if args.model else None)
     except DesignError as exc:
         print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
         return 2

@@ -21,7 +21,8 @@ from .data import SweepSet
 from .errors import DataSourceError
 from .fitting import FitResult, fit_model
 
-__all__ = ['Calibration', 'calibrate_from_sweeps', 'save_calibration', 'MIN_SWEEPS']
+__all__ = ['Calibration', 'calibrate_from_sweeps', 'commission_from_design', 'save_calibration',
+           'MIN_SWEEPS']
 
 #: Fewer sweeps than this cannot both fit a prior and hold some out to grade it.
 MIN_SWEEPS = 3
@@ -70,6 +71,23 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
     final = fit_model(graded.model, data.fit_data(cell), max_nfev=max_nfev)
     return Calibration(final, float(np.sqrt(np.mean(r ** 2))), graded.rmse, tuple(test.labels),
                        len(data), data.source)
+
+
+def commission_from_design(tunnel, design_spec: str, u_min: float, u_max: float, *,
+                           n_samples: int = 1000, seed: int = 0, model: Term | None = None) -> Calibration:
+    """Commission a prior on a (simulated) ``tunnel`` in-process, as a lab does on its rig with
+    `wind-shaper collect --design SPEC` and `calibrate --data`: one sweep of ``n_samples`` at each
+    command of the design ``design_spec`` (``lhs:6``; within [u_min, u_max], seeded by ``seed``),
+    then ``model`` (the paper's prior by default) fitted on them and graded on held-out sweeps.
+    DesignError for a design it cannot run."""
+    from ..experiment.design import make_design
+    from ..model import paper_prior
+    from .data import from_sim
+    fans = tunnel.geometry.fans
+    design = make_design(design_spec, fans, u_min, u_max, seed=seed)
+    data = from_sim(tunnel, design.commands, n_samples=n_samples,
+                    source=f'simulated tunnel, seed {seed}, design {design_spec}')
+    return calibrate_from_sweeps(data, model if model is not None else paper_prior(fans))
 
 
 def save_calibration(path, cal: Calibration):
