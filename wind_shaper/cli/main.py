@@ -111,9 +111,13 @@ def _cmd_calibrate(args) -> int:
 
 
 def _calibrate_from_data(setup, args) -> int:
+    from ..model import paper_prior
+    from ..workbench.calibrate import calibrate_from_sweeps
     from ..workbench.data import load_sweeps
-    data = load_sweeps(args.data, setup.geometry.fans.names)
-    return _fit_and_report(setup, args, data, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml')
+    fans = setup.geometry.fans
+    prior = setup.load_model(args.model) if args.model else paper_prior(fans)
+    cal = calibrate_from_sweeps(load_sweeps(args.data, fans.names), prior)
+    return _report_calibration(cal, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml')
 
 
 def _calibrate_on_sim_from_design(setup, args) -> int:
@@ -130,14 +134,6 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
         print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
         return 2
     return _report_calibration(cal, args.out or setup.model_path)
-
-
-def _fit_and_report(setup, args, data, out) -> int:
-    """Fit the prior (``--model`` or the paper's) on ``data``, write it to ``out``, say how good."""
-    from ..model import paper_prior
-    from ..workbench.calibrate import calibrate_from_sweeps
-    prior = setup.load_model(args.model) if args.model else paper_prior(setup.geometry.fans)
-    return _report_calibration(calibrate_from_sweeps(data, prior), out)
 
 
 def _report_calibration(cal, out) -> int:
