@@ -86,8 +86,8 @@ METHODS = {
 }
 SHIPPED = 'warm+short'
 NOMINAL_TARGETS = ['uniform', 'gaussian@LM1', 'parabolic', 'expr:2.5 + 0.5*cos(3*theta)*r/0.3']
-#: Tunnels whose physics the prior's per-fan corrections cannot absorb; the prior is calibrated
-#: on each (the paper's held-plate batch), as a lab would. The first two were looked at while
+#: Tunnels whose physics the prior's per-fan corrections cannot absorb; the prior is commissioned
+#: on each as a lab would (``CALIBRATION``). The first two were looked at while
 #: the warm start's checks were written; the next two were written afterwards and run once.
 UNFAMILIAR = {
     'weak + swirl + merging + wall': [

@@ -147,4 +147,4 @@ class StallDip(HiddenEffect):
 
 register_effects(SupplySag, RecirculationCore, JetPairing, StallDip)
 
-__all__ = ['SupplySag', 'RecirculationCore']
+__all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip']
