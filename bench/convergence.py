@@ -126,6 +126,14 @@ UNFAMILIAR = {
         {'name': 'jet_pairing', 'pull': 0.05, 'thrust_ref': 3.0},
         {'name': 'stall_dip', 'depth': 0.25, 'at': 0.35, 'width': 0.08, 'seed': 3},
         {'name': 'supply_sag', 'sag': 0.2}, {'name': 'tilted_fan', 'fan': 'HM3', 'shift': [-0.03, 0.02]}],
+    # written after the load slope went on by default, never rising, and run once: jets in a
+    # co-flow that carry more the harder the others run (a slope of the other sign), a stall dip
+    # elsewhere in the curves, a weak fan and a tilted one
+    'coflow + stall + weak': [
+        {'name': 'coflow_carry', 'carry': 0.3, 'thrust_ref': 3.0},
+        {'name': 'stall_dip', 'depth': 0.2, 'at': 0.45, 'width': 0.1, 'seed': 5},
+        {'name': 'weak_fan', 'fan': 'LM1', 'gain': 0.85},
+        {'name': 'tilted_fan', 'fan': 'HM1', 'shift': [0.02, -0.03]}],
 }
 MIXES = {
     'weak HM2 + swirl': [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5}],
@@ -232,8 +240,10 @@ def make_plants(names, tmp: Path) -> list[Plant]:
 ALL_PLANTS = ['prior right', 'nominal', 'radius 0.20', 'unequal curves', '2 fans off', '4x4 wall', *MIXES, *UNFAMILIAR]
 
 
-def zeta_star(plant: Plant, target_values, starts: int = 6, seed: int = 0):
-    """The lowest true-field MSE [N^2] over the bounded PWMs, and its commands."""
+def zeta_star(plant: Plant, target_values, starts: int = 40, seed: int = 1):
+    """The lowest true-field MSE [N^2] over the bounded PWMs, and its commands: the best of
+    ``starts`` bounded least-squares runs (every fan at 0.5, then random commands); a stall dip
+    in the curves leaves local minima that 6 starts missed (the runs went below them), and 16."""
     sim = plant.sim(0)
     setup = plant.setup
     kp = setup.geometry.key_points

@@ -85,8 +85,8 @@ class AdaptiveUpdate:
     ``_pooled_residual``); 0 uses the base's map alone; gain_common_sd [-]: the sd of a gain
     deviation all fans share in the per-fan fit (``ShapeFit``; 0: none), so a fan idle in every
     map so far moves with the others' correction; load_sd [1 per unit command]: the prior sd of
-    a shared slope of every fan's gain with the mean command (``ShapeFit``; 0: none), for a
-    starved inlet or a sagging supply.
+    a shared slope of every fan's gain with the mean command (``ShapeFit``; never above 0; 0:
+    none), for a starved inlet or a sagging supply; ``info['load_slope']`` is the one used.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -408,6 +408,7 @@ class AdaptiveUpdate:
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
+                'load_slope': float(slope),
                 'stop_reason': reason}
         if relearn is not None:
             info['relearned'] = relearn.to_json()

@@ -46,7 +46,9 @@ class ShapeFit:
     load_sd [1 per unit command]: with it > 0 also fit one shared slope of the gains with the
     load, every fan's footprint scaled by 1 + load_slope (L(U) - LOAD_REF) with L the mean
     command of the enabled fans (a starved inlet or a sagging supply: each fan gives less the
-    harder all of them run); prior 0 +- load_sd. 0: no such term. Dense priors only.
+    harder all of them run); prior 0 +- load_sd, and never above 0 (the fit with the slope held
+    at 0 when the free fit's slope is positive: no shared supply makes a fan stronger). 0: no
+    such term. Dense priors only.
 
     swirl: also fit one global term, the whole field turning about the tunnel axis by
     phi(U) = swirl_gain * sum_j s_j a_j(U_j) / sum_j a_j(U_j) [rad] (s_j = +1 for CCW fans, -1
@@ -161,6 +163,12 @@ class ShapeFit:
             A[np.ix_(g, g)] -= self.noise_std ** 2 * c2 / (sd2 * (sd2 + m * c2))
         theta = mean.copy()
         theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
+        if self.loaded and theta[-1] > 0:
+            # a shared supply or inlet can only give less as the load rises: a rising slope is
+            # other misfit (a wider start's map explained away), so the slope stays at 0
+            keep[-1] = False
+            theta = mean.copy()
+            theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
         return theta
 
     def shape_matrix(self, basis: FanBasis, theta):

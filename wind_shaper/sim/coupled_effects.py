@@ -11,6 +11,9 @@ fans do.
   together; a much stronger neighbour does not pair with a weak one.
 * ``StallDip``: an axial fan stalls at part load, so each fan's curve dips there, by its own
   depth (not a coupling, but a curve no polynomial of the prior holds).
+* ``CoflowCarry``: a jet among running jets entrains moving air instead of still air, so it
+  spreads less and carries more of its force to the plate: every fan gives more the harder the
+  others run (the opposite of a sagging supply).
 
 Positions [m, tunnel frame], thrusts and densities [N], commands [fraction 0..1].
 """
@@ -145,6 +148,39 @@ class StallDip(HiddenEffect):
         return u * (1.0 - depth * np.exp(-((u - self.at) / self.width) ** 2))
 
 
-register_effects(SupplySag, RecirculationCore, JetPairing, StallDip)
+@dataclass(frozen=True)
+class CoflowCarry(HiddenEffect):
+    """Jets in a co-flow: a jet spreads by entraining the air around it, and air that already
+    moves with it slows it less. Fan j's footprint narrows and its peak grows (its force at the
+    plate kept, plus a share carried that a still-air jet loses to the walls):
 
-__all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip']
+        c_j = carry * T_o / (T_o + thrust_ref),   T_o = mean thrust of the other enabled fans [N]
+        width_j /= (1 + c_j) ** 0.5,   amplitude_j *= (1 + c_j) ** 2
+
+    ``carry`` [-]: the largest relative gain in force density, at full co-flow."""
+
+    carry: float = 0.3
+    thrust_ref: float = 3.0
+    name: ClassVar[str] = 'coflow_carry'
+    priority: ClassVar[float] = 0.7   # on the jets as they land, after pairing moved them
+    bounds: ClassVar = {'carry': (0.0, 1.0), 'thrust_ref': (0.1, 100.0)}
+
+    def sources(self, groups, thrust, geometry):
+        on = np.asarray(geometry.fans.enabled, bool)
+        t = np.where(on, np.maximum(np.asarray(thrust, dtype=float), 0.0), 0.0)
+        n_on = int(on.sum())
+        if self.carry == 0 or n_on < 2:
+            return groups
+        others = (float(np.sum(t)) - t) / (n_on - 1)
+        c = self.carry * others / (others + self.thrust_ref)
+        for g in groups:
+            jet = g.fan >= 0
+            cj = c[g.fan[jet]]
+            g.width[jet] = g.width[jet] / np.sqrt(1.0 + cj)
+            g.amplitude[jet] = g.amplitude[jet] * (1.0 + cj) ** 2
+        return groups
+
+
+register_effects(SupplySag, RecirculationCore, JetPairing, StallDip, CoflowCarry)
+
+__all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry']

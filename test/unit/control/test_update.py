@@ -150,6 +150,34 @@ def test_a_prior_without_a_closed_form_thrust_curve_is_interpolated_to_its_own_v
     assert np.allclose(basis.thrust(outside)[0], basis._evaluated(outside[None])[0])
 
 
+def test_the_load_slope_never_rises_with_the_load():
+    """Gains that grow as all fans run harder are not a shared supply or inlet (no such supply
+    makes a fan stronger): the slope is held at 0 and the fit is the plain per-fan fit, while a
+    falling slope is still learnt."""
+    from wind_shaper.control.basis import FanBasis
+    from wind_shaper.control.shape_fit import LOAD_REF, ShapeFit
+    from wind_shaper.app import Setup
+    setup = Setup.load()
+    model, Z = setup.load_model(), setup.geometry.key_points
+    basis = FanBasis.from_term(model, Z)
+    n = model.n_fans
+    on = np.ones(n, bool)
+    w = np.ones(len(Z))
+
+    def maps(slope):
+        def truth(U):
+            a, _ = basis.thrust(U)
+            return basis.offset + (1 + slope * (np.mean(U) - LOAD_REF)) * (basis.shape @ a)
+        return [(U, truth(U), w) for U in (np.full(n, 0.2), np.full(n, 0.6))]
+
+    loaded = ShapeFit(bases=('gain',), swirl=False, noise_std=0.05, load_sd=1.0)
+    plain = ShapeFit(bases=('gain',), swirl=False, noise_std=0.05)
+    rising = loaded.fit(basis, maps(+0.6), on)
+    assert loaded.load_slope(rising) == 0.0
+    assert np.allclose(rising[:-1], plain.fit(basis, maps(+0.6), on), atol=1e-9)
+    assert loaded.load_slope(loaded.fit(basis, maps(-0.6), on)) == pytest.approx(-0.6, abs=0.1)
+
+
 def test_the_load_slope_asks_for_a_dense_prior():
     from wind_shaper.app import Setup
     from wind_shaper.control.basis import FanBasis

@@ -247,6 +247,27 @@ def test_jet_pairing_pulls_alike_neighbours_together_and_leaves_a_lone_jet(perfe
     assert np.allclose(sim.true_field(lone, rig.key_points), perfect.true_field(lone, rig.key_points))
 
 
+def test_coflow_carry_gives_a_jet_more_force_the_harder_the_others_run(perfect, rig, lone):
+    from wind_shaper.sim import CoflowCarry
+    sim = perfect.with_effects([CoflowCarry(carry=0.3, thrust_ref=3.0)])
+    alone = lone('HM1', 0.6)                     # no co-flow: the jet as in still air
+    assert np.allclose(sim.true_field(alone, rig.key_points), perfect.true_field(alone, rig.key_points))
+    grid = np.stack(np.meshgrid(np.linspace(-0.6, 0.6, 121), np.linspace(-0.6, 0.6, 121)), -1).reshape(-1, 2)
+    cell = (1.2 / 120) ** 2
+    total = {}
+    for label, tunnel in (('plain', perfect), ('carried', sim)):
+        total[label] = float(np.sum(tunnel.point_field(np.full(7, 0.5), grid))) * cell
+    t = perfect.thrust(np.full(7, 0.5))
+    share = np.mean(0.3 * ((t.sum() - t) / 6) / ((t.sum() - t) / 6 + 3.0))
+    # every jet carries 1 + c_j of its force: the field's integral grows by about the mean c
+    assert total['carried'] / total['plain'] == pytest.approx(1 + share, rel=0.05)
+    state = sim.state(np.full(7, 0.5))
+    plain = perfect.state(np.full(7, 0.5))
+    narrowed = [g.width[g.fan >= 0] / p.width[p.fan >= 0] for g, p in zip(state.groups, plain.groups)
+                if (g.fan >= 0).any()]
+    assert np.all(np.concatenate(narrowed) < 1.0)
+
+
 def test_stall_dip_lowers_each_fan_by_its_own_depth_at_part_load(rig):
     from wind_shaper.sim import StallDip
     dip = StallDip(depth=0.2, at=0.35, width=0.08, seed=4)
