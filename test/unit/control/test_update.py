@@ -87,23 +87,33 @@ def test_a_shared_gain_prior_moves_a_fan_no_map_has_seen_running_with_the_others
     assert np.allclose(shared[1:n], 0.8, atol=0.03) and np.allclose(alone[1:n], 0.8, atol=0.03)
 
 
+def _reference_basis():
+    """The reference prior's fan basis at the key points: (basis, n_fans, every fan on, unit
+    weights per key point)."""
+    from wind_shaper.app import Setup
+    from wind_shaper.control.basis import FanBasis
+    setup = Setup.load()
+    model, Z = setup.load_model(), setup.geometry.key_points
+    return FanBasis.from_term(model, Z), model.n_fans, np.ones(model.n_fans, bool), np.ones(len(Z))
+
+
+def _loaded_truth(basis, slope):
+    """U -> the field [N] of the basis with every gain 1 + slope (mean U - LOAD_REF)."""
+    from wind_shaper.control.shape_fit import LOAD_REF
+
+    def truth(U):
+        a, _ = basis.thrust(U)
+        return basis.offset + (1 + slope * (np.mean(U) - LOAD_REF)) * (basis.shape @ a)
+    return truth
+
+
 def test_a_shared_load_slope_learns_that_every_fan_gives_less_the_harder_all_run():
     """A starved inlet: every gain falls with the fans' mean command L (gain 1 - 0.6 (L - 0.3)).
     Two maps at two loads: the load slope comes out near -0.6 and predicts a third load the
     per-fan gains alone cannot (they fit one level of the gains for both maps)."""
-    from wind_shaper.control.basis import FanBasis
-    from wind_shaper.control.shape_fit import LOAD_REF, ShapeFit
-    from wind_shaper.app import Setup
-    setup = Setup.load()
-    model, Z = setup.load_model(), setup.geometry.key_points
-    basis = FanBasis.from_term(model, Z)
-    n = model.n_fans
-    on = np.ones(n, bool)
-    w = np.ones(len(Z))
-
-    def truth(U):
-        a, _ = basis.thrust(U)
-        return basis.offset + (1 - 0.6 * (np.mean(U) - LOAD_REF)) * (basis.shape @ a)
+    from wind_shaper.control.shape_fit import ShapeFit
+    basis, n, on, w = _reference_basis()
+    truth = _loaded_truth(basis, -0.6)
 
     def predicted(fit, theta, U):
         a, _ = basis.thrust(U)
@@ -154,20 +164,11 @@ def test_the_load_slope_never_rises_with_the_load():
     """Gains that grow as all fans run harder are not a shared supply or inlet (no such supply
     makes a fan stronger): the slope is held at 0 and the fit is the plain per-fan fit, while a
     falling slope is still learnt."""
-    from wind_shaper.control.basis import FanBasis
-    from wind_shaper.control.shape_fit import LOAD_REF, ShapeFit
-    from wind_shaper.app import Setup
-    setup = Setup.load()
-    model, Z = setup.load_model(), setup.geometry.key_points
-    basis = FanBasis.from_term(model, Z)
-    n = model.n_fans
-    on = np.ones(n, bool)
-    w = np.ones(len(Z))
+    from wind_shaper.control.shape_fit import ShapeFit
+    basis, n, on, w = _reference_basis()
 
     def maps(slope):
-        def truth(U):
-            a, _ = basis.thrust(U)
-            return basis.offset + (1 + slope * (np.mean(U) - LOAD_REF)) * (basis.shape @ a)
+        truth = _loaded_truth(basis, slope)
         return [(U, truth(U), w) for U in (np.full(n, 0.2), np.full(n, 0.6))]
 
     loaded = ShapeFit(bases=('gain',), swirl=False, noise_std=0.05, load_sd=1.0)
