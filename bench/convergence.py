@@ -242,8 +242,9 @@ ALL_PLANTS = ['prior right', 'nominal', 'radius 0.20', 'unequal curves', '2 fans
 
 def zeta_star(plant: Plant, target_values, starts: int = 40, seed: int = 1):
     """The lowest true-field MSE [N^2] over the bounded PWMs, and its commands: the best of
-    ``starts`` bounded least-squares runs (every fan at 0.5, then random commands); a stall dip
-    in the curves leaves local minima that 6 starts missed (the runs went below them), and 16."""
+    ``starts`` bounded least-squares runs (every fan at 0.5, then random commands). A stall dip
+    in the curves leaves local minima: on the co-flow tunnel's Gaussian, 6 and 16 starts both
+    missed an optimum that the shaping runs went below."""
     sim = plant.sim(0)
     setup = plant.setup
     kp = setup.geometry.key_points

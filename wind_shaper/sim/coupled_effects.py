@@ -151,13 +151,14 @@ class StallDip(HiddenEffect):
 @dataclass(frozen=True)
 class CoflowCarry(HiddenEffect):
     """Jets in a co-flow: a jet spreads by entraining the air around it, and air that already
-    moves with it slows it less. Fan j's footprint narrows and its peak grows (its force at the
-    plate kept, plus a share carried that a still-air jet loses to the walls):
+    moves with it slows it less. Fan j's footprint narrows and its peak grows, and it brings to
+    the plate a share of its force that a jet in still air loses on the way:
 
         c_j = carry * T_o / (T_o + thrust_ref),   T_o = mean thrust of the other enabled fans [N]
         width_j /= (1 + c_j) ** 0.5,   amplitude_j *= (1 + c_j) ** 2
 
-    ``carry`` [-]: the largest relative gain in force density, at full co-flow."""
+    so each jet's force at the plate (amplitude x width^2) grows by 1 + c_j. ``carry`` [-]: the
+    largest relative gain of a jet's force, in a co-flow of far more than ``thrust_ref``."""
 
     carry: float = 0.3
     thrust_ref: float = 3.0
