@@ -17,7 +17,9 @@ Methods:
 Plants (the prior is commissioned on each plant as the commissioning guide says, 6 designed
 moving-plate sweeps with every fan running fitted by `wind-shaper calibrate --data`, unless said
 otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
-fan alone, which tells the prior nothing of how the fans interact):
+fan alone, which tells the prior nothing of how the fans interact; the runs' first step also
+fits the designed sweeps' field maps, which `calibrate --data` keeps in the model file, unless
+``--no-prior-maps``):
   nominal          the default 7-fan rig (prior: config/model.yaml)
   radius 0.20      hexagon fans 0.20 m from the axis instead of 0.25 m
   unequal curves   every fan on its own throttle curve (U ** p_j, p_j = 0.75-1.5: sim effect
@@ -43,7 +45,7 @@ Definitions (printed with the table):
 
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--plants ...]
                                    [--methods ...] [--calibration held|sweeps:N[:SEED]]
-                                   [--zeta-cache FILE] [--json FILE]
+                                   [--no-prior-maps] [--zeta-cache FILE] [--json FILE]
 Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick).
 """
 from __future__ import annotations
@@ -153,6 +155,7 @@ class Plant:
     prior: object
     model_error: float
     targets: list
+    prior_maps: tuple = ()
 
     def sim(self, seed):
         return self.setup.make_sim(seed=seed, effects=list(effects_from_config(self.effects)))
@@ -176,23 +179,36 @@ def _edited_config(folder: Path, edits: dict) -> Path:
 #: the first and last sweep, swept and fitted as `collect --design lhs:N` and `calibrate --data`
 #: do: ``workbench.calibrate.commission_from_design``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
 CALIBRATION = {'how': 'sweeps:6'}
+#: Whether the runs get the commissioning's sweeps as field maps for their first step, as a lab's
+#: do when `calibrate --data` kept them in the model file (``--no-prior-maps``: without)
+PRIOR_MAPS = {'use': True}
 
 
-def _calibrated(setup: Setup, effects=()) -> tuple[object, float]:
+def _calibrated(setup: Setup, effects=()) -> tuple[object, float, tuple]:
     """The plant's prior commissioned on it (seed 0, ``CALIBRATION``); saved in the config
-    folder so the warm start reads its error as it would from a lab's model file."""
+    folder so the warm start reads its error as it would from a lab's model file. Also the
+    commissioning's field maps when ``PRIOR_MAPS`` asks for them (designed sweeps only), else ()."""
     sim = setup.make_sim(seed=0, effects=list(effects_from_config(effects)))
     how = CALIBRATION['how']
+    maps = ()
     if how.startswith('sweeps:'):
-        from wind_shaper.workbench.calibrate import commission_from_design, save_calibration
+        from wind_shaper.experiment.design import make_design
+        from wind_shaper.model import paper_prior
+        from wind_shaper.workbench.calibrate import (calibrate_from_sweeps, commissioning_maps,
+                                                     save_calibration)
+        from wind_shaper.workbench.data import from_sim
         _, n_sweeps, *design_seed = how.split(':')
         shaping = setup.shaping
-        save_calibration(setup.model_path, commission_from_design(
-            sim, f'lhs:{n_sweeps}', shaping.u_min, shaping.u_max, n_samples=shaping.samples_per_sweep,
-            seed=int(design_seed[0]) if design_seed else 0))
+        design = make_design(f'lhs:{n_sweeps}', setup.geometry.fans, shaping.u_min, shaping.u_max,
+                             seed=int(design_seed[0]) if design_seed else 0)
+        data = from_sim(sim, design.commands, n_samples=shaping.samples_per_sweep)
+        save_calibration(setup.model_path, calibrate_from_sweeps(data, paper_prior(setup.geometry.fans)))
+        if PRIOR_MAPS['use']:
+            maps = commissioning_maps(data, shaping.make_estimator(setup.load_model()),
+                                      setup.geometry.key_points)
     else:
         save_fit(setup.model_path, calibrate(sim, setup.geometry.fans), source='bench calibration')
-    return setup.load_model(), setup.model_error()
+    return setup.load_model(), setup.model_error(), maps
 
 
 def make_plants(names, tmp: Path) -> list[Plant]:
@@ -203,8 +219,8 @@ def make_plants(names, tmp: Path) -> list[Plant]:
             plants.append(Plant(name, nominal, [], nominal.load_model(), nominal.model_error(), NOMINAL_TARGETS))
         elif name == 'radius 0.20':
             s = Setup.load(_edited_config(tmp / 'radius', {'tunnel.yaml': [('hex_radius: 0.25', 'hex_radius: 0.20')]}))
-            prior, err = _calibrated(s)
-            plants.append(Plant(name, s, [], prior, err, ['uniform', 'parabolic']))
+            prior, err, maps = _calibrated(s)
+            plants.append(Plant(name, s, [], prior, err, ['uniform', 'parabolic'], maps))
         elif name == 'prior right':
             # the default build with the reference model as the prior: commissioned fan by fan
             # on this tunnel (config/reference.yaml), it describes it to 0.03 N
@@ -214,8 +230,8 @@ def make_plants(names, tmp: Path) -> list[Plant]:
         elif name == 'unequal curves':
             curves = [{'name': 'unequal_curves', 'spread': 0.3, 'seed': 11}]
             s = Setup.load(_edited_config(tmp / 'unequal', {'sim.yaml': [('gain_sd: 0.08', 'gain_sd: 0.15')]}))
-            prior, err = _calibrated(s, curves)
-            plants.append(Plant(name, s, curves, prior, err, ['uniform', 'parabolic']))
+            prior, err, maps = _calibrated(s, curves)
+            plants.append(Plant(name, s, curves, prior, err, ['uniform', 'parabolic'], maps))
         elif name == '2 fans off':
             s = Setup.load(disabled=('HM1', 'LM3'))
             plants.append(Plant(name, s, [], s.load_model(), s.model_error(), ['uniform', 'parabolic']))
@@ -226,9 +242,9 @@ def make_plants(names, tmp: Path) -> list[Plant]:
             plants.append(Plant(name, s, [], wall_prior(geo.fans), float('nan'), ['uniform:6', 'gaussian@F01_01']))
         elif name in UNFAMILIAR:
             s = Setup.load(_edited_config(tmp / f'unfamiliar{len(plants)}', {}))
-            prior, err = _calibrated(s, UNFAMILIAR[name])
+            prior, err, maps = _calibrated(s, UNFAMILIAR[name])
             plants.append(Plant(name, s, UNFAMILIAR[name], prior, err,
-                                ['uniform', 'parabolic', 'gaussian@LM1']))
+                                ['uniform', 'parabolic', 'gaussian@LM1'], maps))
         elif name in MIXES:
             plants.append(Plant(name, nominal, MIXES[name], nominal.load_model(), nominal.model_error(),
                                 ['uniform', 'parabolic']))
@@ -323,7 +339,8 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
     estimator = setup.shaping.make_estimator(plant.prior)
     loop = ShapingLoop(tunnel, plant.prior, target_values, rule, estimator,
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
-                       fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error)
+                       fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error,
+                       prior_maps=plant.prior_maps)
     out = {'mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [], 'mismatch': None,
            'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):
@@ -399,6 +416,9 @@ def main(argv=None):
                     help="how the calibrated tunnels' priors are commissioned: the paper's "
                          "held-plate batch (every fan alone), or N designed moving-plate sweeps "
                          "with every fan running (as `collect --design lhs` and `calibrate --data`)")
+    ap.add_argument('--no-prior-maps', action='store_true',
+                    help="the runs' first step without the commissioning's sweeps as field maps "
+                         "(what a model file without them gives)")
     ap.add_argument('--plants', default=','.join(ALL_PLANTS), help=f'comma-separated, of: {", ".join(ALL_PLANTS)}')
     ap.add_argument('--methods', default=','.join(METHODS))
     ap.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
@@ -420,6 +440,7 @@ def main(argv=None):
                                            and all(p.isdigit() for p in parts[1:]) and int(parts[1]) >= 3)):
         ap.error(f'--calibration must be held, sweeps:N or sweeps:N:SEED with N >= 3; got {args.calibration!r}')
     CALIBRATION['how'] = args.calibration
+    PRIOR_MAPS['use'] = not args.no_prior_maps
     if args.summary_from:
         print_summary(json.loads(Path(args.summary_from).read_text())['cases'])
         return
@@ -468,7 +489,7 @@ def main(argv=None):
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     meta = {'seeds': seeds, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
-            'calibration': args.calibration, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
+            'calibration': args.calibration, 'prior_maps': not args.no_prior_maps, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))
     print(f'wrote {args.json}')

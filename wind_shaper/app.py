@@ -55,6 +55,18 @@ class Setup:
     def load_model(self, path=None) -> Term:
         return load_model(path or self.model_path, self.geometry.fans)
 
+    def prior_maps(self, path=None, source=None) -> tuple[tuple, str]:
+        """(maps, note): the commissioning's field maps kept in the model file (``path``, or its
+        text ``source``) as ``control.PastIteration``, for the adaptive update's first step, and
+        why there are none where the file has maps this config cannot use (other key points);
+        ((), '') when the file has none."""
+        from .control import PastIteration
+        from .model.modelfile import commissioning_maps_in
+        maps, note = commissioning_maps_in(source if source is not None else (path or self.model_path),
+                                           self.geometry.key_points, self.geometry.fans.n_fans,
+                                           text=source is not None)
+        return tuple(PastIteration(U, mean, std, {'commissioning': True}) for U, mean, std in maps), note
+
     def model_error(self, path=None) -> float:
         """The prior's calibration error per key point [N] (NaN if its file does not say)."""
         return model_error(path or self.model_path)
@@ -120,12 +132,14 @@ def shaping_loop_on_sim(setup: Setup, target_spec, *, seed: int = 0, model: Term
     warm start's check) is read from the model file when ``model`` is the setup's own."""
     sim = sim or setup.make_sim(seed=seed)
     error = float('nan') if model is not None else setup.model_error()
+    maps = () if model is not None else setup.prior_maps()[0]
     model = model or setup.load_model()
     target = setup.make_target(target_spec, model=model)
     kp = setup.geometry.key_points
     loop = ShapingLoop.from_settings(sim, model, target.values(kp), setup.shaping, u0=u0,
                                      rule_overrides=rule_overrides, model_error=error,
-                                     truth=lambda U: sim.true_field(U, kp), on_progress=on_progress)
+                                     truth=lambda U: sim.true_field(U, kp), prior_maps=maps,
+                                     on_progress=on_progress)
     return loop, target
 
 

@@ -68,7 +68,14 @@ def test_calibrate_on_the_simulator_from_designed_sweeps(tmp_path, capsys):
     saved = yaml.safe_load(out.read_text())
     assert saved['fitted_from'].startswith('6 moving-plate sweeps') and 'lhs:6' in saved['fitted_from']
     assert 0 < saved['heldout_rmse_N'] < 1.0
-    assert 'held-out sweeps' in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert 'held-out sweeps' in said and '4 of the sweeps kept as field maps' in said
+    # the four sweeps with fans running, as field maps at the key points, for a run's first step
+    from wind_shaper.app import Setup
+    setup = Setup.load()
+    assert len(saved['commissioning_maps']['maps']) == 4
+    maps, note = setup.prior_maps(out)
+    assert note == '' and len(maps) == 4 and maps[0].mean.shape == (len(setup.geometry.key_points),)
 
 
 @pytest.mark.parametrize('argv,said', [

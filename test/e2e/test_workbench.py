@@ -54,6 +54,10 @@ def test_fit_and_compare_write_their_reports(tmp_path, capsys):
                  '--save', str(tmp_path / 'fitted.yaml')]) == 0
     doc = _summary(fit)
     assert doc['heldout']['model_rmse_N'] < 0.5 * doc['heldout']['noise_sd_N']
+    # the sweeps' field maps kept beside the fitted model, as `calibrate --data` keeps them
+    from wind_shaper.app import Setup
+    maps, note = Setup.load().prior_maps(tmp_path / 'fitted.yaml')
+    assert note == '' and len(maps) >= 4
     assert set(doc['train_overall']) >= {'rmse', 'r2', 'max_error'} and doc['train_overall']['r2'] > 0.99
     assert all('std' in p for p in doc['fit']['parameters'].values())
     cmp = tmp_path / 'cmp'

@@ -49,6 +49,10 @@ def _cmd_shape(args) -> int:
     u0 = _u0(args.u0)
     loop, target = shaping_loop_on_sim(setup, args.target, seed=args.seed, model=model, sim=sim,
                                        u0=u0, rule_overrides=rule or None)
+    if args.model:   # the model file's commissioning maps, as for the setup's own
+        loop.prior_maps, note = setup.prior_maps(args.model)
+        if note:
+            print(f'note: {note}')
     if loop.warm is not None:
         print(loop.warm.text())
         for note in loop.warm.notes:
@@ -117,7 +121,8 @@ def _calibrate_from_data(setup, args) -> int:
     fans = setup.geometry.fans
     prior = setup.load_model(args.model) if args.model else paper_prior(fans)
     cal = calibrate_from_sweeps(load_sweeps(args.data, fans.names), prior)
-    return _report_calibration(cal, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml')
+    return _report_calibration(cal, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml',
+                               setup)
 
 
 def _calibrate_on_sim_from_design(setup, args) -> int:
@@ -133,18 +138,23 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
     except DesignError as exc:
         print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
         return 2
-    return _report_calibration(cal, args.out or setup.model_path)
+    return _report_calibration(cal, args.out or setup.model_path, setup)
 
 
-def _report_calibration(cal, out) -> int:
-    """Write the calibrated model file to ``out`` and print the fit, its grades and the next step."""
-    from ..workbench.calibrate import save_calibration
-    save_calibration(out, cal)
+def _report_calibration(cal, out, setup) -> int:
+    """Write the calibrated model file to ``out`` (with the sweeps' field maps at the setup's key
+    points, for the first step of a run) and print the fit, its grades and the next step."""
+    from ..workbench.calibrate import commissioning_maps, save_calibration
+    kp = setup.geometry.key_points
+    maps = commissioning_maps(cal.data, setup.shaping.make_estimator(cal.model), kp) if cal.data else ()
+    save_calibration(out, cal, maps, kp)
     print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {cal.source}')
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
           f'({", ".join(cal.held_out)}) of a fit on the others')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
         print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
+    print(f'{len(maps)} of the sweeps kept as field maps for the first step of every run '
+          f'(the sweeps with fans running that cover the key points)')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
     return 0
 

@@ -98,6 +98,8 @@ def _cmd_fit(args) -> int:
     model = setup.load_model(path)
     data = _data(setup, args)
     res = fit_command(model, data, setup.geometry, out, save=args.save, source_model=str(path))
+    if args.save:
+        _keep_maps(setup, args.save, data)
     held = res.heldout
     print(f'fitted {path} on {data.source}: training RMSE {res.fit.rmse:.3f} N'
           + (f', held-out model error {held["model_rmse"]:.3f} N (noise {held["noise_sd"]:.3f} N)' if held else ''))
@@ -227,6 +229,7 @@ def _cmd_add(args) -> int:
     save = args.save or (out / 'model.yaml')
     res = add_command(model, additions, data, setup.geometry, out, save=save, library=library,
                       closed_loop=loop if args.closed_loop else None, noise_sd=args.noise_sd)
+    _keep_maps(setup, save, data)
     print(f'added {", ".join(_added_text(a) for a in res.added)} (refitted on the training sweeps)')
     print(f'{res.change}; new model written to {save}')
     if res.closed_loop is not None:
@@ -235,6 +238,14 @@ def _cmd_add(args) -> int:
               f'{k}: ' + ', '.join(f'{lab} {v:.3f} N' for lab, v in res.closed_loop.at(k).items()))
     print(f'report: {out}/')
     return 0
+
+
+def _keep_maps(setup, save, data):
+    """The sweeps' field maps into the saved model file, as `calibrate --data` keeps them."""
+    from ..workbench.calibrate import keep_commissioning_maps
+    if save is not None and Path(save).is_file():
+        keep_commissioning_maps(save, data, setup.shaping.make_estimator(setup.load_model(save)),
+                                setup.geometry.key_points)
 
 
 def _diagnosis_findings(path) -> list:

@@ -86,7 +86,10 @@ class AdaptiveUpdate:
     deviation all fans share in the per-fan fit (``ShapeFit``; 0: none), so a fan idle in every
     map so far moves with the others' correction; load_sd [1 per unit command]: the prior sd of
     a shared slope of every fan's gain with the mean command (``ShapeFit``; never above 0; 0:
-    none), for a starved inlet or a sagging supply; ``info['load_slope']`` is the one used.
+    none), for a starved inlet or a sagging supply; ``info['load_slope']`` is the one used;
+    commissioning_weight [-]: the weight, against one of the run's maps, of each commissioning
+    map (``UpdateInput.prior_maps``) in the first update's fit (0: not used; dense priors only);
+    ``info['commissioning_maps']`` says how many went in.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -115,6 +118,7 @@ class AdaptiveUpdate:
     pool_within: float = 0.05
     gain_common_sd: float = 0.0
     load_sd: float = 0.0
+    commissioning_weight: float = 1.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -138,6 +142,9 @@ class AdaptiveUpdate:
         if not 0 <= self.load_sd <= 5:
             raise ConfigError(f'load_sd must be in [0, 5] (gain change per unit of the mean '
                               f'command), got {self.load_sd}')
+        if not 0 <= self.commissioning_weight <= 10:
+            raise ConfigError(f'commissioning_weight must be in [0, 10] (against one of the run\'s '
+                              f'maps), got {self.commissioning_weight}')
         if not 0 <= self.pool_within <= 1:
             raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
 
@@ -208,6 +215,16 @@ class AdaptiveUpdate:
         # the fit and the secant use the most recent `memory` maps and the base (old maps far
         # from the operating point add little and cost time)
         window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b})
+        # The first update also fits the commissioning's maps (``UpdateInput.prior_maps``): the
+        # run has one map, at the prior's optimum, and a step from a fit on it alone lands
+        # where that map cannot tell; maps across the command range can. Later updates fit the
+        # run's own maps alone: far maps weigh heavily on a fit's slopes and would hold the
+        # steps near the optimum to the prior's form.
+        broad = []
+        if self.commissioning_weight > 0 and not history and inp.k == 0 and target is not None:
+            for p in inp.prior_maps:
+                s2 = self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)
+                broad.append((np.asarray(p.U, float), np.asarray(p.mean, float), s2))
 
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
@@ -235,6 +252,8 @@ class AdaptiveUpdate:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
+                abs_maps += [(U, F, self.commissioning_weight * share * self.noise_std ** 2 / s2)
+                             for U, F, s2 in broad]
                 theta = fit.fit(basis, abs_maps, on)
             else:
                 theta = fit.prior(basis.n_fans)[0]
@@ -409,6 +428,7 @@ class AdaptiveUpdate:
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'load_slope': float(slope),
+                'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'stop_reason': reason}
         if relearn is not None:
             info['relearned'] = relearn.to_json()

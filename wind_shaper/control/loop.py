@@ -79,14 +79,16 @@ class ShapingLoop:
     needs a tunnel with ``sweep_chunks``); fan_settle_s: tunnel time the fans need after a new
     command before the sweep [s] (counted, not waited: the simulator settles at once);
     on_progress: called with a ``SweepProgress`` after every chunk of an adaptive sweep;
-    truth: optional U -> true field at the key points, for scoring on a simulator.
+    truth: optional U -> true field at the key points, for scoring on a simulator; prior_maps:
+    the commissioning's field maps of this tunnel at the same key points (``PastIteration``;
+    ``workbench.calibrate.commissioning_maps``), for the rule's first step.
     """
 
     def __init__(self, tunnel: Tunnel, model: Term, target: np.ndarray, rule: UpdateRule,
                  estimator: FieldEstimator = FieldEstimator(), u0=0.5, n_samples: int = 1000,
                  truth: Callable[[np.ndarray], np.ndarray] | None = None, *,
                  sweep_length: SweepLength | None = None, fan_settle_s: float = 0.0,
-                 model_error: float = float('nan'),
+                 model_error: float = float('nan'), prior_maps: tuple = (),
                  on_progress: Callable[[SweepProgress], None] | None = None):
         geo = tunnel.geometry
         self.tunnel, self.model, self.rule, self.estimator = tunnel, model, rule, estimator
@@ -103,6 +105,12 @@ class ShapingLoop:
         self.truth = truth
         self.sweep_length, self.on_progress = sweep_length, on_progress
         self.fan_settle_s = float(fan_settle_s)
+        self.prior_maps = tuple(prior_maps)
+        for m in self.prior_maps:
+            if np.shape(m.mean) != (len(self.key_points),) or np.shape(m.U) != (geo.fans.n_fans,):
+                raise ConfigError(f'a commissioning map has {np.shape(m.mean)} values and '
+                                  f'{np.shape(m.U)} commands for {len(self.key_points)} key points '
+                                  f'and {geo.fans.n_fans} fans: estimate it at this tunnel\'s key points')
         self.warm: WarmStart | None = None
         if isinstance(u0, str):
             if u0 != 'warm':
@@ -121,16 +129,17 @@ class ShapingLoop:
                       rule_overrides: dict | None = None,
                       truth: Callable[[np.ndarray], np.ndarray] | None = None,
                       model_error: float = float('nan'), sweep_length: SweepLength | None = None,
-                      on_progress=None) -> 'ShapingLoop':
+                      prior_maps: tuple = (), on_progress=None) -> 'ShapingLoop':
         """The loop that ``shaping`` (a ``control.settings.ShapingConfig``) configures: its update
         rule (``rule_overrides={'method': 'paper'}`` for Algorithm 1), estimator, samples per
-        sweep, sweep length, fan settle time and u0 (unless given)."""
+        sweep, sweep length, fan settle time and u0 (unless given); ``prior_maps``: the
+        commissioning's field maps (see the class)."""
         return cls(tunnel, model, target, shaping.make_rule(**(rule_overrides or {})),
                    shaping.make_estimator(model), u0=shaping.u0 if u0 is None else u0,
                    n_samples=shaping.samples_per_sweep, truth=truth,
                    sweep_length=shaping.make_sweep_length() if sweep_length is None else sweep_length,
                    fan_settle_s=shaping.fan_settle_s, model_error=model_error,
-                   on_progress=on_progress)
+                   prior_maps=prior_maps, on_progress=on_progress)
 
     def region_plan(self, U) -> RegionPlan | None:
         """Where the sweep at commands ``U`` must go (``control.region``): None for the whole
@@ -188,7 +197,8 @@ class ShapingLoop:
                             for r in self.history)
             step = rule.step(UpdateInput(self.k, self.U.copy(), delta, J, self.enabled, est.std,
                                          model=self.model, key_points=self.key_points,
-                                         target=self.target, history=history))
+                                         target=self.target, history=history,
+                                         prior_maps=self.prior_maps))
             next_pwm, step_size = step.U_next, step.step_size
             info = {**dict(step.info), **info}
             if check is not None:

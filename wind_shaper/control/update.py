@@ -57,7 +57,9 @@ class UpdateInput:
 
     Optional, for rules that learn from the run (``PaperUpdate`` ignores them): model: the
     prior ``Term``; key_points: (N, 2) [m]; target: (N,) F_des [N]; history: the earlier
-    iterations of this run, oldest first (``PastIteration``).
+    iterations of this run, oldest first (``PastIteration``); prior_maps: field maps of this
+    tunnel measured when the prior was commissioned (``PastIteration``, at the same key points):
+    data for the rule's corrections of the prior, never a point to step from.
     """
 
     k: int
@@ -70,6 +72,7 @@ class UpdateInput:
     key_points: np.ndarray | None = None
     target: np.ndarray | None = None
     history: tuple = ()
+    prior_maps: tuple = ()
 
 
 @dataclass(frozen=True)

@@ -245,10 +245,14 @@ def _polish(model, Z, target, bounds, on, U0):
 
 def first_step_rule(rule, check: PredictionCheck | None):
     """The update rule for the first update after a warm start: with a trust radius, halved when
-    the first sweep did not match the prediction; the rule itself otherwise."""
+    the first sweep did not match the prediction, and without the commissioning's maps (they
+    describe the tunnel the prior was fitted on, which this one is not); the rule itself
+    otherwise."""
     if check is None or not check.mismatch or not hasattr(rule, 'radius'):
         return rule
     half = max(rule.radius_min, 0.5 * rule.radius)
+    if hasattr(rule, 'commissioning_weight'):
+        return replace(rule, radius=half, commissioning_weight=0.0)
     return replace(rule, radius=half)
 
 

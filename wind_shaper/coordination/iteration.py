@@ -136,10 +136,11 @@ def past_iteration(U, mean, std, info) -> PastIteration:
 class ShapingRun:
     """The run a coordinator drives, from one config folder's ``setup`` (``wind_shaper.app.Setup``
     or anything with its ``geometry``, ``shaping``, ``config_dir``, ``model_path``,
-    ``load_model`` and ``make_target``).
+    ``load_model``, ``prior_maps`` and ``make_target``).
 
     State: ``k`` (next iteration), ``U`` (its commands), ``command`` (the commands in force on
-    the fans: None until the first iteration of a new run), ``model``, ``target`` and
+    the fans: None until the first iteration of a new run), ``model`` (and ``prior_maps``, the
+    commissioning's field maps its model file keeps, for the first step), ``target`` and
     ``target_spec``, ``last_rmse`` [N] (NaN before the first iteration), ``notes`` ((level,
     text) pairs, level 'info' or 'warning': what the opening found that an operator should read)."""
 
@@ -159,6 +160,8 @@ class ShapingRun:
         self.command: np.ndarray | None = U.copy() if last_completed >= 0 else None
         self.notes = notes
         self.last_record_folder = None  # the folder of the iteration written last
+        #: the commissioning's field maps in the prior's model file, for the first step
+        self.prior_maps: tuple = ()
         self.warm: WarmStart | None = None  # iteration 0's warm start, until it has run
 
     @classmethod
@@ -188,8 +191,12 @@ class ShapingRun:
         if store.model_path.is_file():
             model = load_model(store.model_path, geo.fans)
             notes.append(('info', f'prior from the run folder: {store.model_path}'))
+            prior_maps, maps_note = setup.prior_maps(store.model_path)
         else:
             model = setup.load_model()
+            prior_maps, maps_note = setup.prior_maps()
+        if maps_note:
+            notes.append(('warning', maps_note))
         target = setup.make_target(state.target, model=model)
         if state.target != target_spec:
             notes.append(('warning', f'the run {store.folder} has target {state.target!r}; the '
@@ -205,6 +212,7 @@ class ShapingRun:
         last_rmse = float(store.load_record(last)['rmse_N']) if last >= 0 else float('nan')
         run = cls(setup, store, model, state.target, target, history, state.next_k, U, last,
                   last_rmse, notes)
+        run.prior_maps = prior_maps
         stored = store.info.config.get('warm_start')
         if last < 0 and isinstance(stored, dict) and np.allclose(stored.get('U', []), U, atol=1e-9):
             run.warm = WarmStart(U, np.asarray(stored['predicted_N'], float),
@@ -256,6 +264,9 @@ class ShapingRun:
         keeping the text in the run folder."""
         self.store.save_model_text(text)
         self.model = model
+        self.prior_maps, note = self.setup.prior_maps(source=text)
+        if note:
+            self.notes.append(('warning', note))
         return model
 
     # -- the update ----------------------------------------------------------------------------------
@@ -293,7 +304,7 @@ class ShapingRun:
         J = model.jacobian(U, kp)  # the rule's search direction and the prediction below
         step = rule.step(UpdateInput(k, U.copy(), target_values - mean, J, self.enabled, std,
                                      model=model, key_points=kp, target=target_values,
-                                     history=tuple(self.history)))
+                                     history=tuple(self.history), prior_maps=self.prior_maps))
         U_next = step.U_next
         if check is not None:   # the prior's optimum not this tunnel's: start again wider
             U_next, restart = self.warm.next_commands(check, U_next)

@@ -1,8 +1,10 @@
 """Model files: a fitted prior saved as YAML, loadable for any fan array of the same groups."""
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from ..core.errors import LimitError, ModelFileError
@@ -74,3 +76,64 @@ def model_from_text(text: str, fans: FanArray, source: str = 'model text') -> Te
         return term_from_dict(doc['model'], fans)
     except ModelFileError as exc:
         raise ModelFileError(f'{source}: {exc}') from None
+
+
+#: The model file's section with the commissioning's field maps (``commissioning_maps_section``).
+MAPS_KEY = 'commissioning_maps'
+
+
+def key_points_digest(key_points) -> str:
+    """A short fingerprint of key points (N, 2) [m], rounded to 0.1 mm: maps estimated at other
+    key points are not this tunnel layout's."""
+    pts = np.round(np.asarray(key_points, dtype=float).reshape(-1, 2) * 1e4).astype(np.int64)
+    return hashlib.sha1(pts.tobytes()).hexdigest()[:16]
+
+
+def commissioning_maps_section(maps, key_points) -> dict:
+    """The ``commissioning_maps`` section of a model file: every map's commands [fraction] and its
+    field estimate and std [N] at ``key_points`` (rounded to 0.1 mN), with the key points'
+    fingerprint. ``maps``: (U, mean, std) triples."""
+    import numpy as np
+    return {'key_points': int(len(key_points)), 'key_points_digest': key_points_digest(key_points),
+            'maps': [{'pwm': np.round(np.asarray(U, float), 6).tolist(),
+                      'mean_N': np.round(np.asarray(mean, float), 4).tolist(),
+                      'std_N': np.round(np.asarray(std, float), 4).tolist()} for U, mean, std in maps]}
+
+
+def read_commissioning_maps(doc, key_points, n_fans: int) -> tuple[list, str]:
+    """(maps, note) from a model file's parsed ``doc``: maps as (U (n_fans,), mean (N,), std (N,))
+    triples, and why there are none when the file has a section that cannot be used here (other
+    key points, other fans, malformed); ([], '') when the file has no such section."""
+    section = doc.get(MAPS_KEY) if isinstance(doc, dict) else None
+    if section is None:
+        return [], ''
+    why = ('the model file\'s commissioning maps are not used: {}; calibrate again with this '
+           'config folder to have them')
+    if not isinstance(section, dict) or not isinstance(section.get('maps'), list):
+        return [], why.format('its commissioning_maps section is malformed')
+    if section.get('key_points_digest') != key_points_digest(key_points):
+        return [], why.format(f'they were estimated at other key points ({section.get("key_points")} '
+                              f'against this tunnel\'s {len(key_points)})')
+    out = []
+    for i, m in enumerate(section['maps']):
+        try:
+            U, mean, std = (np.asarray(m[k], dtype=float) for k in ('pwm', 'mean_N', 'std_N'))
+        except (KeyError, TypeError, ValueError):
+            return [], why.format(f'map {i} lacks pwm, mean_N or std_N numbers')
+        if (U.shape != (n_fans,) or mean.shape != (len(key_points),) or std.shape != mean.shape
+                or not (np.all(np.isfinite(U)) and np.all(np.isfinite(mean)) and np.all(std >= 0))):
+            return [], why.format(f'map {i} has {U.size} commands and {mean.size} values for '
+                                  f'{n_fans} fans and {len(key_points)} key points, or numbers '
+                                  f'that are not finite')
+        out.append((U, mean, std))
+    return out, ''
+
+
+def commissioning_maps_in(source, key_points, n_fans: int, *, text: bool = False) -> tuple[list, str]:
+    """``read_commissioning_maps`` of the model file at path ``source``, or of its text with
+    ``text=True``; ([], note) when it cannot be read."""
+    try:
+        doc = load_yaml(source, 'model text') if text else read_yaml_file(source)
+    except (OSError, yaml.YAMLError, LimitError) as exc:
+        return [], f'the model file\'s commissioning maps are not used: it cannot be read ({exc})'
+    return read_commissioning_maps(doc, key_points, n_fans)

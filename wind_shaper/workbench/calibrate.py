@@ -13,16 +13,18 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ..model import Term, save_model
+from ..model.modelfile import MAPS_KEY, commissioning_maps_section
 from .data import SweepSet
 from .errors import DataSourceError
 from .fitting import FitResult, fit_model
 
-__all__ = ['Calibration', 'calibrate_from_sweeps', 'commission_from_design', 'save_calibration',
-           'MIN_SWEEPS']
+__all__ = ['Calibration', 'calibrate_from_sweeps', 'commission_from_design', 'commissioning_maps',
+           'keep_commissioning_maps', 'save_calibration', 'MIN_SWEEPS']
 
 #: Fewer sweeps than this cannot both fit a prior and hold some out to grade it.
 MIN_SWEEPS = 3
@@ -32,7 +34,8 @@ MIN_SWEEPS = 3
 class Calibration:
     """fit: the model fitted on every sweep; heldout_rmse: RMSE [N] on the held-out sweeps of the
     fit on the others (cell means); train_rmse: that fit's RMSE on its own sweeps [N];
-    held_out: the held-out sweeps' labels; source: where the sweeps came from."""
+    held_out: the held-out sweeps' labels; source: where the sweeps came from; data: the sweeps
+    (for their field maps, ``commissioning_maps``)."""
 
     fit: FitResult
     heldout_rmse: float
@@ -40,6 +43,7 @@ class Calibration:
     held_out: tuple
     n_sweeps: int
     source: str
+    data: SweepSet | None = None
 
     @property
     def model(self) -> Term:
@@ -70,7 +74,7 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
     r = graded.model(held.U, held.Z) - held.y
     final = fit_model(graded.model, data.fit_data(cell), max_nfev=max_nfev)
     return Calibration(final, float(np.sqrt(np.mean(r ** 2))), graded.rmse, tuple(test.labels),
-                       len(data), data.source)
+                       len(data), data.source, data)
 
 
 def commission_from_design(tunnel, design_spec: str, u_min: float, u_max: float, *,
@@ -90,14 +94,58 @@ def commission_from_design(tunnel, design_spec: str, u_min: float, u_max: float,
     return calibrate_from_sweeps(data, model if model is not None else paper_prior(fans))
 
 
-def save_calibration(path, cal: Calibration):
+def commissioning_maps(data: SweepSet, estimator, key_points) -> tuple:
+    """The field at ``key_points`` (N, 2) [m] of every sweep of ``data`` with a fan running, as
+    ``control.update.PastIteration`` (commands [fraction], mean and std [N]) estimated by
+    ``estimator`` (a ``FieldEstimator``): maps across the command range for the adaptive
+    update's first step (``UpdateInput.prior_maps``, ``ShapingLoop(prior_maps=...)``). Sweeps
+    that miss a key point are left out, and so are sweeps with every fan off: they say nothing
+    of the fans and would pin the fit's uniform offset."""
+    from ..control.update import PastIteration
+    from ..core.errors import SweepError
+    maps = []
+    for sweep in data.sweeps:
+        if not np.any(np.asarray(sweep.pwm, float) > 0):
+            continue
+        try:
+            est = estimator.estimate(sweep, key_points)
+        except SweepError:
+            continue
+        maps.append(PastIteration(np.asarray(sweep.pwm, float), est.mean, est.std, {'commissioning': True}))
+    return tuple(maps)
+
+
+def keep_commissioning_maps(path, data: SweepSet, estimator, key_points) -> int:
+    """Add the field maps of ``data``'s sweeps (``commissioning_maps``) to the model file at
+    ``path`` that was fitted on them (`model fit --save`, `model add --save`), so a run's first
+    step has them as it has a calibrated prior's. Returns how many were kept."""
+    import yaml
+
+    from ..core.safe_yaml import read_yaml_file
+    maps = commissioning_maps(data, estimator, key_points)
+    if not maps:
+        return 0
+    doc = read_yaml_file(path)
+    doc[MAPS_KEY] = commissioning_maps_section([(m.U, m.mean, m.std) for m in maps], key_points)
+    tmp = Path(path).with_suffix(Path(path).suffix + '.tmp')
+    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    tmp.replace(path)
+    return len(maps)
+
+
+def save_calibration(path, cal: Calibration, maps=(), key_points=None):
     """Write the calibrated model file: the model, its fit and held-out RMSE [N] and each fitted
-    parameter with its 1-sigma error."""
+    parameter with its 1-sigma error; with ``maps`` (``commissioning_maps`` at ``key_points``),
+    also their ``commissioning_maps`` section, for the adaptive update's first step."""
     def num(x):
         return None if not math.isfinite(x) else round(float(x), 6)
+    extra = {}
+    if maps:
+        extra[MAPS_KEY] = commissioning_maps_section([(m.U, m.mean, m.std) for m in maps], key_points)
     return save_model(path, cal.model, fitted_from=f'{cal.n_sweeps} moving-plate sweeps: {cal.source}',
                       rmse_N=num(cal.fit.rmse), heldout_rmse_N=num(cal.heldout_rmse),
                       held_out_sweeps=list(cal.held_out), n_samples=int(cal.fit.n),
                       fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),
                       parameters={n: {'value': num(v), 'std': num(s)}
-                                  for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)})
+                                  for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)},
+                      **extra)

@@ -44,3 +44,22 @@ def test_a_refusal_says_a_known_error_plainly_and_names_anything_else_shortly():
     assert why(WindShaperError('the target is unknown')) == 'the target is unknown'
     text = why(KeyError('x' * 5000))
     assert text.startswith('unexpected KeyError: ') and len(text) < 1000
+
+
+def test_a_model_file_with_commissioning_maps_gives_them_to_the_run(setup, run):
+    """set_model with a file that keeps the commissioning's maps: the run's first step gets
+    them; a file whose maps are for other key points gives none and a warning."""
+    import numpy as np
+    import yaml
+
+    from wind_shaper.model.modelfile import commissioning_maps_section
+    doc = yaml.safe_load((setup.config_dir / 'model.yaml').read_text())
+    kp = setup.geometry.key_points
+    maps = [(np.full(7, 0.4), np.full(len(kp), 2.0), np.full(len(kp), 0.05))]
+    doc['commissioning_maps'] = commissioning_maps_section(maps, kp)
+    text = yaml.safe_dump(doc)
+    run.set_model(text, 'the test')
+    assert len(run.prior_maps) == 1 and np.allclose(run.prior_maps[0].U, 0.4)
+    doc['commissioning_maps'] = commissioning_maps_section(maps, kp + 0.05)
+    run.set_model(yaml.safe_dump(doc), 'the test')
+    assert run.prior_maps == () and any('other key points' in t for _, t in run.notes)
