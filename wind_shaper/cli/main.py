@@ -144,16 +144,16 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
 def _report_calibration(cal, out, setup) -> int:
     """Write the calibrated model file to ``out`` (with the sweeps' field maps at the setup's key
     points, for the first step of a run) and print the fit, its grades and the next step."""
-    from ..workbench.calibrate import commissioning_maps, save_calibration
-    kp = setup.geometry.key_points
-    maps = commissioning_maps(cal.data, setup.shaping.make_estimator(cal.model), kp) if cal.data else ()
-    save_calibration(out, cal, maps, kp)
+    from ..workbench.calibrate import keep_commissioning_maps, save_calibration
+    save_calibration(out, cal)
+    kept = keep_commissioning_maps(out, cal.data, setup.shaping.make_estimator(cal.model),
+                                   setup.geometry.key_points) if cal.data else 0
     print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {cal.source}')
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
           f'({", ".join(cal.held_out)}) of a fit on the others')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
         print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
-    print(f'{len(maps)} of the sweeps kept as field maps for the first step of every run '
+    print(f'{kept} of the sweeps kept as field maps for the first step of every run '
           f'(the sweeps with fans running that cover the key points)')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
     return 0

@@ -117,8 +117,8 @@ def commissioning_maps(data: SweepSet, estimator, key_points) -> tuple:
 
 def keep_commissioning_maps(path, data: SweepSet, estimator, key_points) -> int:
     """Add the field maps of ``data``'s sweeps (``commissioning_maps``) to the model file at
-    ``path`` that was fitted on them (`model fit --save`, `model add --save`), so a run's first
-    step has them as it has a calibrated prior's. Returns how many were kept."""
+    ``path`` that was fitted on them (`calibrate --data`, `model fit --save`, `model add
+    --save`), for the first step of a run. Returns how many were kept."""
     import yaml
 
     from ..core.safe_yaml import read_yaml_file
@@ -133,19 +133,14 @@ def keep_commissioning_maps(path, data: SweepSet, estimator, key_points) -> int:
     return len(maps)
 
 
-def save_calibration(path, cal: Calibration, maps=(), key_points=None):
+def save_calibration(path, cal: Calibration):
     """Write the calibrated model file: the model, its fit and held-out RMSE [N] and each fitted
-    parameter with its 1-sigma error; with ``maps`` (``commissioning_maps`` at ``key_points``),
-    also their ``commissioning_maps`` section, for the adaptive update's first step."""
+    parameter with its 1-sigma error (``keep_commissioning_maps`` adds the sweeps' field maps)."""
     def num(x):
         return None if not math.isfinite(x) else round(float(x), 6)
-    extra = {}
-    if maps:
-        extra[MAPS_KEY] = commissioning_maps_section([(m.U, m.mean, m.std) for m in maps], key_points)
     return save_model(path, cal.model, fitted_from=f'{cal.n_sweeps} moving-plate sweeps: {cal.source}',
                       rmse_N=num(cal.fit.rmse), heldout_rmse_N=num(cal.heldout_rmse),
                       held_out_sweeps=list(cal.held_out), n_samples=int(cal.fit.n),
                       fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),
                       parameters={n: {'value': num(v), 'std': num(s)}
-                                  for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)},
-                      **extra)
+                                  for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)})
