@@ -192,19 +192,16 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float, tuple]:
     how = CALIBRATION['how']
     maps = ()
     if how.startswith('sweeps:'):
-        from wind_shaper.experiment.design import make_design
-        from wind_shaper.model import paper_prior
-        from wind_shaper.workbench.calibrate import (calibrate_from_sweeps, commissioning_maps,
+        from wind_shaper.workbench.calibrate import (commission_from_design, commissioning_maps,
                                                      save_calibration)
-        from wind_shaper.workbench.data import from_sim
         _, n_sweeps, *design_seed = how.split(':')
         shaping = setup.shaping
-        design = make_design(f'lhs:{n_sweeps}', setup.geometry.fans, shaping.u_min, shaping.u_max,
-                             seed=int(design_seed[0]) if design_seed else 0)
-        data = from_sim(sim, design.commands, n_samples=shaping.samples_per_sweep)
-        save_calibration(setup.model_path, calibrate_from_sweeps(data, paper_prior(setup.geometry.fans)))
+        cal = commission_from_design(sim, f'lhs:{n_sweeps}', shaping.u_min, shaping.u_max,
+                                     n_samples=shaping.samples_per_sweep,
+                                     seed=int(design_seed[0]) if design_seed else 0)
+        save_calibration(setup.model_path, cal)
         if PRIOR_MAPS['use']:
-            maps = commissioning_maps(data, shaping.make_estimator(setup.load_model()),
+            maps = commissioning_maps(cal.data, shaping.make_estimator(setup.load_model()),
                                       setup.geometry.key_points)
     else:
         save_fit(setup.model_path, calibrate(sim, setup.geometry.fans), source='bench calibration')

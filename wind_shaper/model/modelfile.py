@@ -19,8 +19,12 @@ def save_model(path, model: Term, **meta) -> Path:
     """Write ``model`` (and free-form metadata: where it was fitted, its RMSE) to ``path``.
 
     Written to a temporary file first and renamed, so a crash never leaves half a model."""
+    return write_model_doc(path, {'wind_shaper_model': FORMAT_VERSION, **meta, 'model': model.to_dict()})
+
+
+def write_model_doc(path, doc: dict) -> Path:
+    """Write a model file's parsed ``doc`` to ``path`` through a temporary file and a rename."""
     path = Path(path)
-    doc = {'wind_shaper_model': FORMAT_VERSION, **meta, 'model': model.to_dict()}
     tmp = path.with_suffix(path.suffix + '.tmp')
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -93,7 +97,6 @@ def commissioning_maps_section(maps, key_points) -> dict:
     """The ``commissioning_maps`` section of a model file: every map's commands [fraction] and its
     field estimate and std [N] at ``key_points`` (rounded to 0.1 mN), with the key points'
     fingerprint. ``maps``: (U, mean, std) triples."""
-    import numpy as np
     return {'key_points': int(len(key_points)), 'key_points_digest': key_points_digest(key_points),
             'maps': [{'pwm': np.round(np.asarray(U, float), 6).tolist(),
                       'mean_N': np.round(np.asarray(mean, float), 4).tolist(),

@@ -13,12 +13,11 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..model import Term, save_model
-from ..model.modelfile import MAPS_KEY, commissioning_maps_section
+from ..model.modelfile import MAPS_KEY, commissioning_maps_section, write_model_doc
 from .data import SweepSet
 from .errors import DataSourceError
 from .fitting import FitResult, fit_model
@@ -119,17 +118,13 @@ def keep_commissioning_maps(path, data: SweepSet, estimator, key_points) -> int:
     """Add the field maps of ``data``'s sweeps (``commissioning_maps``) to the model file at
     ``path`` that was fitted on them (`calibrate --data`, `model fit --save`, `model add
     --save`), for the first step of a run. Returns how many were kept."""
-    import yaml
-
     from ..core.safe_yaml import read_yaml_file
     maps = commissioning_maps(data, estimator, key_points)
     if not maps:
         return 0
     doc = read_yaml_file(path)
     doc[MAPS_KEY] = commissioning_maps_section([(m.U, m.mean, m.std) for m in maps], key_points)
-    tmp = Path(path).with_suffix(Path(path).suffix + '.tmp')
-    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
-    tmp.replace(path)
+    write_model_doc(path, doc)
     return len(maps)
 
 
