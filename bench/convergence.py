@@ -43,8 +43,22 @@ Definitions (printed with the table):
                  the scoring excluded; for short sweeps every interim estimate included),
                  median [ms]; BLAS on one thread
 
+Your own tunnel model: ``--tunnel FILE.yaml`` (repeatable) benchmarks the shaping on the default
+rig with the simulator effects the file lists, its prior commissioned on it like the unfamiliar
+tunnels above (see ``load_tunnel_file``; without ``--plants`` only the files' tunnels run):
+
+  name: draughty lab                       # the case's name in the tables
+  effects:                                 # as config/sim.yaml's `effects:` list
+    - {name: side_draft, dx: 0.08}
+    - {name: weak_fan, fan: LM2, gain: 0.85}
+  targets: [uniform, parabolic]            # optional; default uniform, parabolic, gaussian@LM1
+  plugins: [my_effects.py]                 # optional; files that register effects of your own
+                                           # (wind_shaper.sim.register_effects), relative to
+                                           # the YAML file
+
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--plants ...]
-                                   [--methods ...] [--calibration held|sweeps:N[:SEED]]
+                                   [--tunnel FILE.yaml ...] [--methods ...]
+                                   [--calibration held|sweeps:N[:SEED]]
                                    [--no-prior-maps] [--zeta-cache FILE] [--json FILE]
 Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick).
 """
@@ -136,7 +150,17 @@ UNFAMILIAR = {
         {'name': 'stall_dip', 'depth': 0.2, 'at': 0.45, 'width': 0.1, 'seed': 5},
         {'name': 'weak_fan', 'fan': 'LM1', 'gain': 0.85},
         {'name': 'tilted_fan', 'fan': 'HM1', 'shift': [0.02, -0.03]}],
+    # written after the commissioning maps went into the first step, and run once: a draft
+    # across the exit that moves the plume less the harder the fans blow, the wall turning the
+    # jets' outer flow back inside, air returning down the wall, and every ESC limiting its
+    # current (a knee in each fan's curve, at its own thrust)
+    'draft + reflection + current limit': [
+        {'name': 'side_draft'}, {'name': 'wall_reflection'}, {'name': 'wall_return_flow'},
+        {'name': 'esc_current_limit'}],
 }
+#: Tunnels of the lab's own (``--tunnel FILE``): name -> (effects, targets).
+OWN_TUNNELS: dict = {}
+DEFAULT_OWN_TARGETS = ['uniform', 'parabolic', 'gaussian@LM1']
 MIXES = {
     'weak HM2 + swirl': [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5}],
     'blocked patch + tilted LM2': [{'name': 'honeycomb_blockage'}, {'name': 'tilted_fan', 'fan': 'LM2'}],
@@ -208,6 +232,49 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float, tuple]:
     return setup.load_model(), setup.model_error(), maps
 
 
+def load_tunnel_file(path) -> tuple[str, list, list]:
+    """A tunnel model of the lab's own from a YAML file (see the module docstring): (name,
+    effects, targets), each checked: the plugins imported, every effect built on the default rig
+    and every target made, so that a mistake stops the benchmark before its first run, with
+    what was wrong. SystemExit otherwise."""
+    import yaml
+    from wind_shaper.core.errors import ConfigError
+    from wind_shaper.model.plugins import load_plugin
+    path = Path(path)
+    where = f'tunnel file {path}'
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise SystemExit(f'{where}: cannot read it ({exc.strerror}); give the path of a YAML file') from None
+    except yaml.YAMLError as exc:
+        raise SystemExit(f'{where} is not valid YAML: {exc}') from None
+    known = {'name', 'effects', 'targets', 'plugins'}
+    if not isinstance(doc, dict) or not {'name', 'effects'} <= set(doc):
+        raise SystemExit(f'{where} must be a mapping with name and effects (and optionally '
+                         f'targets, plugins); see bench/convergence.py --help')
+    if set(doc) - known:
+        raise SystemExit(f'{where}: unknown keys {sorted(set(doc) - known)}; known: {sorted(known)}')
+    name, effects = str(doc['name']).strip(), doc['effects']
+    targets = doc.get('targets') or list(DEFAULT_OWN_TARGETS)
+    if not name or name in ALL_PLANTS or name in OWN_TUNNELS:
+        raise SystemExit(f'{where}: name {name!r} is empty or taken (by a built-in tunnel or '
+                         f'another file); give the tunnel a name of its own')
+    if not isinstance(effects, list) or not isinstance(targets, list):
+        raise SystemExit(f'{where}: effects and targets must be lists')
+    try:
+        for plugin in doc.get('plugins') or []:
+            p = Path(str(plugin))
+            load_plugin(str(p if p.is_absolute() or p.suffix != '.py' else path.parent / p),
+                        origin=where)
+        setup = Setup.load()
+        setup.make_sim(seed=0, effects=list(effects_from_config(effects)))
+        for t in targets:
+            setup.make_target(str(t))
+    except (ConfigError, ValueError, TypeError) as exc:
+        raise SystemExit(f'{where}: {exc}') from None
+    return name, effects, [str(t) for t in targets]
+
+
 def make_plants(names, tmp: Path) -> list[Plant]:
     plants = []
     nominal = Setup.load()
@@ -242,11 +309,17 @@ def make_plants(names, tmp: Path) -> list[Plant]:
             prior, err, maps = _calibrated(s, UNFAMILIAR[name])
             plants.append(Plant(name, s, UNFAMILIAR[name], prior, err,
                                 ['uniform', 'parabolic', 'gaussian@LM1'], maps))
+        elif name in OWN_TUNNELS:
+            effects, targets = OWN_TUNNELS[name]
+            s = Setup.load(_edited_config(tmp / f'own{len(plants)}', {}))
+            prior, err, maps = _calibrated(s, effects)
+            plants.append(Plant(name, s, effects, prior, err, targets, maps))
         elif name in MIXES:
             plants.append(Plant(name, nominal, MIXES[name], nominal.load_model(), nominal.model_error(),
                                 ['uniform', 'parabolic']))
         else:
-            raise SystemExit(f'unknown plant {name!r}; choose from {", ".join(ALL_PLANTS)}')
+            raise SystemExit(f'unknown plant {name!r}; choose from {", ".join([*ALL_PLANTS, *OWN_TUNNELS])} '
+                             f'(or give a tunnel of your own with --tunnel FILE.yaml)')
     return plants
 
 
@@ -416,7 +489,11 @@ def main(argv=None):
     ap.add_argument('--no-prior-maps', action='store_true',
                     help="the runs' first step without the commissioning's sweeps as field maps "
                          "(what a model file without them gives)")
-    ap.add_argument('--plants', default=','.join(ALL_PLANTS), help=f'comma-separated, of: {", ".join(ALL_PLANTS)}')
+    ap.add_argument('--plants', default=None, help=f'comma-separated, of: {", ".join(ALL_PLANTS)} '
+                                                   f'(default: all, or only the --tunnel files\' tunnels)')
+    ap.add_argument('--tunnel', action='append', default=[], metavar='FILE.yaml',
+                    help='a tunnel model of your own: simulator effects on the default rig '
+                         '(see the module docstring; repeatable)')
     ap.add_argument('--methods', default=','.join(METHODS))
     ap.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                     help='an adaptive-update setting for the adaptive methods, e.g. radius=0.5 (repeatable)')
@@ -450,7 +527,13 @@ def main(argv=None):
         for cfg in methods.values():
             if cfg['rule']['method'] == 'adaptive':
                 cfg['rule'][key] = json.loads(value) if value[:1] in '0123456789-[{tf' else value
-    plant_names = ['nominal'] if args.quick else [p.strip() for p in args.plants.split(',')]
+    OWN_TUNNELS.clear()
+    for path in args.tunnel:
+        name, effects, targets = load_tunnel_file(path)
+        OWN_TUNNELS[name] = (effects, targets)
+    if args.plants is None:
+        args.plants = ','.join(OWN_TUNNELS) if OWN_TUNNELS else ','.join(ALL_PLANTS)
+    plant_names = ['nominal'] if args.quick and not OWN_TUNNELS else [p.strip() for p in args.plants.split(',')]
     seeds = min(args.seeds, 2) if args.quick else args.seeds
     zpath = Path(args.zeta_cache) if args.zeta_cache else None
     zcache = json.loads(zpath.read_text()) if zpath and zpath.is_file() else {}

@@ -94,3 +94,36 @@ def test_a_calibration_the_bench_cannot_run_is_refused(bad, tmp_path, monkeypatc
     with pytest.raises(SystemExit):
         conv.main(['--calibration', bad, '--quick'])
     assert '--calibration must be' in capsys.readouterr().err
+
+
+def test_a_tunnel_of_the_labs_own_runs_from_its_file(tmp_path, monkeypatch):
+    """``--tunnel FILE``: the example's effects (one from a plugin) make the plant, its prior is
+    commissioned on it, and only its cases run."""
+    conv = _load('convergence')
+    example = Path(__file__).resolve().parents[2] / 'docs' / 'examples' / 'own_tunnel.yaml'
+    monkeypatch.setitem(conv.CALIBRATION, 'how', 'sweeps:4')
+    out = tmp_path / 'own.json'
+    conv.main(['--tunnel', str(example), '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
+               '--targets', 'uniform', '--json', str(out)])
+    cases = json.loads(out.read_text())['cases']
+    assert [c['case'] for c in cases] == ['stray jet + draft + current limit, uniform']
+    plant, = conv.make_plants(['stray jet + draft + current limit'], tmp_path)
+    assert [e['name'] for e in plant.effects] == ['stray_jet', 'side_draft', 'esc_current_limit']
+    assert 'moving-plate sweeps' in plant.setup.model_path.read_text()
+
+
+@pytest.mark.parametrize('text,says', [
+    ('name: x\neffects:\n  - {name: nope}\n', "unknown hidden effect 'nope'"),
+    ('name: x\neffects: []\ncolour: red\n', "unknown keys ['colour']"),
+    ('name: x\neffects:\n  - {name: weak_fan, fan: ZZ1}\n', "no fan named 'ZZ1'"),
+    ('name: x\neffects: []\ntargets: [wobbly]\n', "unknown target kind 'wobbly'"),
+    ('name: nominal\neffects: []\n', 'taken'),
+    ('effects: []\n', 'must be a mapping with name and effects'),
+    ('name: x\neffects: []\nplugins: [absent.py]\n', 'does not exist'),
+])
+def test_a_tunnel_file_with_a_mistake_is_refused_with_what_was_wrong(text, says, tmp_path, capsys):
+    conv = _load('convergence')
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(text)
+    with pytest.raises(SystemExit, match=says.replace('[', r'\[').replace(']', r'\]')):
+        conv.load_tunnel_file(bad)

@@ -278,6 +278,23 @@ def test_stall_dip_lowers_each_fan_by_its_own_depth_at_part_load(rig):
     assert not np.allclose(StallDip(seed=5).command(np.full(7, 0.35), rig), dip.command(np.full(7, 0.35), rig))
 
 
+def test_esc_current_limit_flattens_each_fan_towards_its_own_ceiling(perfect, rig):
+    from wind_shaper.sim import EscCurrentLimit
+    limit = EscCurrentLimit(ceiling=4.0, spread=0.2, seed=7)
+    sim = perfect.with_effects([limit])
+    caps = limit.caps(7)
+    assert np.all((caps >= 3.2) & (caps <= 4.8)) and np.ptp(caps) > 0.1
+    low, high = np.full(7, 0.2), np.full(7, 0.65)
+    # little changed where the thrust is far below the ceiling, much near and above it
+    assert np.allclose(sim.thrust(low) / perfect.thrust(low), 1.0, atol=0.02)
+    cut = sim.thrust(high) / perfect.thrust(high)
+    assert np.all(cut < 0.85) and np.all(sim.thrust(high) < caps)
+    # still rising: a stronger command never gives less thrust
+    assert np.all(sim.thrust(np.full(7, 0.9)) > sim.thrust(high))
+    with pytest.raises(EffectError, match='spread'):
+        EscCurrentLimit(spread=1.5)
+
+
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
     sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])
