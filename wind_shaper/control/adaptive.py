@@ -89,7 +89,10 @@ class AdaptiveUpdate:
     none), for a starved inlet or a sagging supply; ``info['load_slope']`` is the one used;
     commissioning_weight [-]: the weight, against one of the run's maps, of each commissioning
     map (``UpdateInput.prior_maps``) in the first update's fit (0: not used; dense priors only);
-    ``info['commissioning_maps']`` says how many went in.
+    commissioning_reach [PWM fraction]: later updates fit them too, each weighed by
+    exp(-(d / reach)^2) with d the largest difference of its commands from the base's (0: the
+    first update only); ``info['commissioning_maps']`` says how many went in and
+    ``info['commissioning_weight']`` their summed weight.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -119,6 +122,7 @@ class AdaptiveUpdate:
     gain_common_sd: float = 0.0
     load_sd: float = 0.0
     commissioning_weight: float = 1.0
+    commissioning_reach: float = 0.15
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -145,6 +149,9 @@ class AdaptiveUpdate:
         if not 0 <= self.commissioning_weight <= 10:
             raise ConfigError(f'commissioning_weight must be in [0, 10] (against one of the run\'s '
                               f'maps), got {self.commissioning_weight}')
+        if not 0 <= self.commissioning_reach <= 1:
+            raise ConfigError(f'commissioning_reach must be in [0, 1] (a PWM fraction), got '
+                              f'{self.commissioning_reach}')
         if not 0 <= self.pool_within <= 1:
             raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
 
@@ -170,6 +177,25 @@ class AdaptiveUpdate:
         cache.clear()  # one run at a time; a new model or key points replaces the old entry
         cache[key] = (inp.model, basis)
         return basis
+
+    def _commissioning_weights(self, inp: UpdateInput, history, fit_from: int, relearn, U_b) -> list:
+        """The weight, against one of the run's maps, of each commissioning map in this update's
+        fit: ``commissioning_weight`` each in the first update; in later ones that times
+        exp(-(d / commissioning_reach)^2), d [PWM fraction] the largest difference of the map's
+        commands from the base's (0 when ``commissioning_reach`` is 0). None at all without a
+        target, after the first sweep contradicted the prior, or once the run has relearned (the
+        tunnel is no longer the one commissioned)."""
+        maps = inp.prior_maps
+        if self.commissioning_weight <= 0 or inp.target is None or not maps:
+            return [0.0] * len(maps)
+        if not history:
+            return [self.commissioning_weight if inp.k == 0 else 0.0] * len(maps)
+        first = dict(history[0].info).get('warm_start') or {}
+        if (self.commissioning_reach <= 0 or relearn is not None or fit_from > 0
+                or (first.get('check') or {}).get('mismatch')):
+            return [0.0] * len(maps)
+        far = [float(np.max(np.abs(np.asarray(p.U, float) - U_b))) for p in maps]
+        return [self.commissioning_weight * float(np.exp(-(d / self.commissioning_reach) ** 2)) for d in far]
 
     def step(self, inp: UpdateInput) -> UpdateStep:
         return self._step(inp, relearn=None)
@@ -217,15 +243,13 @@ class AdaptiveUpdate:
         window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b})
         # The first update also fits the commissioning's maps (``UpdateInput.prior_maps``): the
         # run has one map, at the prior's optimum, and a step from a fit on it alone lands
-        # where that map cannot tell; maps across the command range can. Later updates fit the
-        # run's own maps alone: far maps weigh heavily on a fit's slopes and would hold the
-        # steps near the optimum to the prior's form.
-        broad = []
-        if self.commissioning_weight > 0 and not history and inp.k == 0 and target is not None:
-            for p in inp.prior_maps:
-                s2 = self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)
-                broad.append((np.asarray(p.U, float), np.asarray(p.mean, float), s2))
-
+        # where that map cannot tell; maps across the command range can. Later updates fit
+        # only those near the base (``commissioning_reach``): far maps weigh heavily on a fit's
+        # slopes and would hold the steps near the optimum to the prior's form.
+        broad_w = self._commissioning_weights(inp, history, fit_from, relearn, U_b)
+        broad = [(np.asarray(p.U, float), np.asarray(p.mean, float),
+                  w * self.noise_std ** 2 / (self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)))
+                 for p, w in zip(inp.prior_maps, broad_w) if w > 1e-3 * self.commissioning_weight]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
@@ -252,8 +276,7 @@ class AdaptiveUpdate:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
-                abs_maps += [(U, F, self.commissioning_weight * share * self.noise_std ** 2 / s2)
-                             for U, F, s2 in broad]
+                abs_maps += [(U, F, share * w) for U, F, w in broad]
                 theta = fit.fit(basis, abs_maps, on)
             else:
                 theta = fit.prior(basis.n_fans)[0]
@@ -429,6 +452,7 @@ class AdaptiveUpdate:
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'load_slope': float(slope),
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
+                'commissioning_weight': round(float(sum(broad_w)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}
         if relearn is not None:
             info['relearned'] = relearn.to_json()

@@ -201,7 +201,7 @@ def coflow():
 def test_the_commissioning_maps_put_the_first_step_on_an_unfamiliar_tunnel_near_the_optimum(coflow):
     """Fitted on the run's one map (at the prior's optimum) the first step more than doubles the
     error; fitted on that map and the commissioning's four maps with fans running, it halves it.
-    Later steps fit the run's own maps alone."""
+    Later steps fit only the maps near their base, each less the farther it is."""
     setup, effects, cal, maps = coflow
     kp = setup.geometry.key_points
     assert len(maps) == 4   # the design's two sweeps with every fan off left out
@@ -217,7 +217,8 @@ def test_the_commissioning_maps_put_the_first_step_on_an_unfamiliar_tunnel_near_
         runs[name] = [loop.iterate(), loop.iterate()]
     first = runs['with'][0]
     assert first.info['commissioning_maps'] == 4 and runs['without'][0].info['commissioning_maps'] == 0
-    assert runs['with'][1].info['commissioning_maps'] == 0
+    second = runs['with'][1].info
+    assert 0 < second['commissioning_weight'] < first.info['commissioning_weight'] == pytest.approx(4.0)
     start = error(first.pwm)
     # measured: 0.53 N^2 at the warm start; 0.23 with the maps, 1.09 without
     assert error(first.next_pwm) < 0.6 * start < 0.6 * error(runs['without'][0].next_pwm)
@@ -245,3 +246,27 @@ def test_commissioning_maps_of_another_tunnel_layout_are_refused(coflow):
     with pytest.raises(ConfigError, match='key points'):
         ShapingLoop.from_settings(setup.make_sim(seed=0), cal.model, np.zeros(len(kp)),
                                   setup.shaping, prior_maps=short)
+
+
+def test_later_updates_weigh_each_commissioning_map_by_its_distance_from_the_base():
+    """First update: every map at full weight. Later ones: exp(-(d / reach)^2), d the largest
+    command difference from the base; none after a mismatched first sweep, after relearning,
+    or with reach 0."""
+    from dataclasses import replace as _replace
+
+    from wind_shaper.control import AdaptiveUpdate
+    from wind_shaper.control.update import PastIteration, UpdateInput
+    rule = AdaptiveUpdate(commissioning_weight=1.0, commissioning_reach=0.15)
+    base = np.full(7, 0.3)
+    maps = tuple(PastIteration(base + d, np.zeros(3)) for d in (0.0, 0.15, 0.3, -0.45))
+    first = UpdateInput(0, base, np.zeros(3), None, np.ones(7, bool), target=np.zeros(3), prior_maps=maps)
+    assert rule._commissioning_weights(first, (), 0, None, base) == [1.0] * 4
+    past = (PastIteration(base, np.zeros(3), info={'warm_start': {'check': {'mismatch': False}}}),)
+    later = _replace(first, k=1, history=past)
+    w = rule._commissioning_weights(later, past, 0, None, base)
+    assert w == pytest.approx([1.0, np.exp(-1.0), np.exp(-4.0), np.exp(-9.0)])
+    mismatched = (PastIteration(base, np.zeros(3), info={'warm_start': {'check': {'mismatch': True}}}),)
+    assert rule._commissioning_weights(later, mismatched, 0, None, base) == [0.0] * 4
+    assert rule._commissioning_weights(later, past, 1, None, base) == [0.0] * 4      # relearned
+    assert AdaptiveUpdate(commissioning_reach=0.0)._commissioning_weights(later, past, 0, None, base) == [0.0] * 4
+    assert rule._commissioning_weights(_replace(first, target=None), (), 0, None, base) == [0.0] * 4
