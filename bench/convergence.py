@@ -60,7 +60,8 @@ Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--pl
                                    [--tunnel FILE.yaml ...] [--methods ...]
                                    [--calibration held|sweeps:N[:SEED]]
                                    [--no-prior-maps] [--zeta-cache FILE] [--json FILE]
-Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick).
+Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick; with --tunnel,
+convergence_own.json and convergence_own_quick.json).
 """
 from __future__ import annotations
 
@@ -520,6 +521,8 @@ def main(argv=None):
         return
     if args.json is None:
         stem = 'convergence' if args.source == 'plate' else f'convergence_{args.source}'
+        if args.tunnel:   # a lab's own tunnels never overwrite the shipped results
+            stem += '_own'
         args.json = f'bench/out/{stem}_quick.json' if args.quick else f'bench/out/{stem}.json'
     methods = {m: {**METHODS[m], 'rule': dict(METHODS[m]['rule'])} for m in args.methods.split(',')}
     for kv in args.set:

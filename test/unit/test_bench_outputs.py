@@ -16,12 +16,18 @@ from bench_module import load_bench as _load  # noqa: E402
 
 @pytest.mark.parametrize('source,quick,written', [
     ('plate', False, 'convergence.json'), ('static', False, 'convergence_static.json'),
-    ('plate', True, 'convergence_quick.json'), ('static', True, 'convergence_static_quick.json')])
+    ('plate', True, 'convergence_quick.json'), ('static', True, 'convergence_static_quick.json'),
+    ('plate-own', True, 'convergence_own_quick.json'), ('plate-own', False, 'convergence_own.json')])
 def test_convergence_writes_the_file_of_its_source(source, quick, written, tmp_path, monkeypatch):
     conv = _load('convergence')
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(conv, 'make_plants', lambda names, tmp: [])  # no cases: only the bookkeeping runs
-    conv.main(['--source', source, '--seeds', '1', '--iterations', '2', *(['--quick'] if quick else [])])
+    own = []
+    if source == 'plate-own':   # a lab's own tunnel: never over the shipped results
+        source = 'plate'
+        monkeypatch.setattr(conv, 'load_tunnel_file', lambda path: ('mine', [], ['uniform']))
+        own = ['--tunnel', 'mine.yaml']
+    conv.main(['--source', source, '--seeds', '1', '--iterations', '2', *own, *(['--quick'] if quick else [])])
     files = sorted(p.name for p in (tmp_path / 'bench' / 'out').iterdir())
     assert files == [written]
     assert json.loads((tmp_path / 'bench' / 'out' / written).read_text())['meta']['source'] == source
