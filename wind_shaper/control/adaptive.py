@@ -57,6 +57,16 @@ from .update import CommandBounds, UpdateInput, UpdateStep
 _BASIS_CACHE: dict[Any, Any] = {}
 
 
+#: Settings checked against a range: name -> (low, high, what the number is).
+_RANGES = {
+    'gain_common_sd': (0, 1, 'a share of the gain'),
+    'load_sd': (0, 5, 'gain change per unit of the mean command'),
+    'commissioning_weight': (0, 10, "against one of the run's maps"),
+    'commissioning_reach': (0, 1, 'a PWM fraction'),
+    'pool_within': (0, 1, 'a PWM fraction'),
+}
+
+
 @dataclass(frozen=True)
 class AdaptiveUpdate:
     """Trust-region steps on a data-corrected prior (see the module docstring).
@@ -140,20 +150,10 @@ class AdaptiveUpdate:
                 and self.fit_from >= 1):
             raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
                               'fit_from >= 1')
-        if not 0 <= self.gain_common_sd <= 1:
-            raise ConfigError(f'gain_common_sd must be in [0, 1] (a share of the gain), got '
-                              f'{self.gain_common_sd}')
-        if not 0 <= self.load_sd <= 5:
-            raise ConfigError(f'load_sd must be in [0, 5] (gain change per unit of the mean '
-                              f'command), got {self.load_sd}')
-        if not 0 <= self.commissioning_weight <= 10:
-            raise ConfigError(f'commissioning_weight must be in [0, 10] (against one of the run\'s '
-                              f'maps), got {self.commissioning_weight}')
-        if not 0 <= self.commissioning_reach <= 1:
-            raise ConfigError(f'commissioning_reach must be in [0, 1] (a PWM fraction), got '
-                              f'{self.commissioning_reach}')
-        if not 0 <= self.pool_within <= 1:
-            raise ConfigError(f'pool_within must be in [0, 1] (a PWM fraction), got {self.pool_within}')
+        for name, (low, high, what) in _RANGES.items():
+            value = getattr(self, name)
+            if not low <= value <= high:
+                raise ConfigError(f'{name} must be in [{low}, {high}] ({what}), got {value}')
 
     @property
     def stopping(self) -> StoppingRule:
@@ -246,10 +246,11 @@ class AdaptiveUpdate:
         # where that map cannot tell; maps across the command range can. Later updates fit
         # only those near the base (``commissioning_reach``): far maps weigh heavily on a fit's
         # slopes and would hold the steps near the optimum to the prior's form.
-        broad_w = self._commissioning_weights(inp, history, fit_from, relearn, U_b)
+        kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b))
+                if w > 1e-3 * self.commissioning_weight]   # fainter ones change no fit, cost time
         broad = [(np.asarray(p.U, float), np.asarray(p.mean, float),
                   w * self.noise_std ** 2 / (self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)))
-                 for p, w in zip(inp.prior_maps, broad_w) if w > 1e-3 * self.commissioning_weight]
+                 for p, w in kept]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
@@ -452,7 +453,7 @@ class AdaptiveUpdate:
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'load_slope': float(slope),
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
-                'commissioning_weight': round(float(sum(broad_w)), 4) if mode == 'shape' else 0.0,
+                'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
