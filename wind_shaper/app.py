@@ -57,7 +57,7 @@ class Setup:
 
     def prior_maps(self, path=None, source=None) -> tuple[tuple, str]:
         """(maps, note): the commissioning's field maps kept in the model file (``path``, or its
-        text ``source``) as ``control.PastIteration``, for the adaptive update's first step, and
+        text ``source``) as ``control.PastIteration``, for the adaptive update's fit, and
         why there are none where the file has maps this config cannot use (other key points);
         ((), '') when the file has none."""
         from .control import PastIteration

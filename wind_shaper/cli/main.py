@@ -143,7 +143,7 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
 
 def _report_calibration(cal, out, setup) -> int:
     """Write the calibrated model file to ``out`` (with the sweeps' field maps at the setup's key
-    points, for the first step of a run) and print the fit, its grades and the next step."""
+    points, for the update rule's fit) and print the fit, its grades and the next step."""
     from ..workbench.calibrate import keep_commissioning_maps, save_calibration
     save_calibration(out, cal)
     kept = keep_commissioning_maps(out, cal.data, setup.shaping.make_estimator(cal.model),
@@ -153,8 +153,8 @@ def _report_calibration(cal, out, setup) -> int:
           f'({", ".join(cal.held_out)}) of a fit on the others')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
         print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
-    print(f'{kept} of the sweeps kept as field maps for the first step of every run '
-          f'(the sweeps with fans running that cover the key points)')
+    print(f'{kept} of the sweeps kept as field maps for every run\'s update, its first step and '
+          f'later steps near them (the sweeps with fans running that cover the key points)')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
     return 0
 

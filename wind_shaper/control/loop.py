@@ -81,7 +81,7 @@ class ShapingLoop:
     on_progress: called with a ``SweepProgress`` after every chunk of an adaptive sweep;
     truth: optional U -> true field at the key points, for scoring on a simulator; prior_maps:
     the commissioning's field maps of this tunnel at the same key points (``PastIteration``;
-    ``workbench.calibrate.commissioning_maps``), for the rule's first step.
+    ``workbench.calibrate.commissioning_maps``), for the rule's fit.
     """
 
     def __init__(self, tunnel: Tunnel, model: Term, target: np.ndarray, rule: UpdateRule,

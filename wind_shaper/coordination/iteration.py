@@ -140,7 +140,7 @@ class ShapingRun:
 
     State: ``k`` (next iteration), ``U`` (its commands), ``command`` (the commands in force on
     the fans: None until the first iteration of a new run), ``model`` (and ``prior_maps``, the
-    commissioning's field maps its model file keeps, for the first step), ``target`` and
+    commissioning's field maps its model file keeps, for the update's fit), ``target`` and
     ``target_spec``, ``last_rmse`` [N] (NaN before the first iteration), ``notes`` ((level,
     text) pairs, level 'info' or 'warning': what the opening found that an operator should read)."""
 
@@ -160,7 +160,7 @@ class ShapingRun:
         self.command: np.ndarray | None = U.copy() if last_completed >= 0 else None
         self.notes = notes
         self.last_record_folder = None  # the folder of the iteration written last
-        #: the commissioning's field maps in the prior's model file, for the first step
+        #: the commissioning's field maps in the prior's model file, for the update's fit
         self.prior_maps: tuple = ()
         self.warm: WarmStart | None = None  # iteration 0's warm start, until it has run
 

@@ -97,7 +97,7 @@ def commissioning_maps(data: SweepSet, estimator, key_points) -> tuple:
     """The field at ``key_points`` (N, 2) [m] of every sweep of ``data`` with a fan running, as
     ``control.update.PastIteration`` (commands [fraction], mean and std [N]) estimated by
     ``estimator`` (a ``FieldEstimator``): maps across the command range for the adaptive
-    update's first step (``UpdateInput.prior_maps``, ``ShapingLoop(prior_maps=...)``). Sweeps
+    update's fit (``UpdateInput.prior_maps``, ``ShapingLoop(prior_maps=...)``). Sweeps
     that miss a key point are left out, and so are sweeps with every fan off: they say nothing
     of the fans and would pin the fit's uniform offset."""
     from ..control.update import PastIteration
@@ -117,7 +117,7 @@ def commissioning_maps(data: SweepSet, estimator, key_points) -> tuple:
 def keep_commissioning_maps(path, data: SweepSet, estimator, key_points) -> int:
     """Add the field maps of ``data``'s sweeps (``commissioning_maps``) to the model file at
     ``path`` that was fitted on them (`calibrate --data`, `model fit --save`, `model add
-    --save`), for the first step of a run. Returns how many were kept."""
+    --save`), for the update rule's fit. Returns how many were kept."""
     from ..core.safe_yaml import read_yaml_file
     maps = commissioning_maps(data, estimator, key_points)
     if not maps:
