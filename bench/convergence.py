@@ -17,9 +17,9 @@ Methods:
 Plants (the prior is commissioned on each plant as the commissioning guide says, 6 designed
 moving-plate sweeps with every fan running fitted by `wind-shaper calibrate --data`, unless said
 otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
-fan alone, which tells the prior nothing of how the fans interact; the runs' first step also
-fits the designed sweeps' field maps, which `calibrate --data` keeps in the model file, unless
-``--no-prior-maps``):
+fan alone, which tells the prior nothing of how the fans interact; the runs' update also fits
+the designed sweeps' field maps (the first step all of them, later steps those near them), which
+`calibrate --data` keeps in the model file, unless ``--no-prior-maps``):
   nominal          the default 7-fan rig (prior: config/model.yaml)
   radius 0.20      hexagon fans 0.20 m from the axis instead of 0.25 m
   unequal curves   every fan on its own throttle curve (U ** p_j, p_j = 0.75-1.5: sim effect
@@ -161,6 +161,7 @@ UNFAMILIAR = {
 }
 #: Tunnels of the lab's own (``--tunnel FILE``): name -> (effects, targets).
 OWN_TUNNELS: dict = {}
+#: The targets of the unfamiliar tunnels, and of a lab's own when its file names none.
 DEFAULT_OWN_TARGETS = ['uniform', 'parabolic', 'gaussian@LM1']
 MIXES = {
     'weak HM2 + swirl': [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5}],
@@ -204,7 +205,7 @@ def _edited_config(folder: Path, edits: dict) -> Path:
 #: the first and last sweep, swept and fitted as `collect --design lhs:N` and `calibrate --data`
 #: do: ``workbench.calibrate.commission_from_design``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
 CALIBRATION = {'how': 'sweeps:6'}
-#: Whether the runs get the commissioning's sweeps as field maps for their first step, as a lab's
+#: Whether the runs get the commissioning's sweeps as field maps for their update, as a lab's
 #: do when `calibrate --data` kept them in the model file (``--no-prior-maps``: without)
 PRIOR_MAPS = {'use': True}
 
@@ -305,16 +306,11 @@ def make_plants(names, tmp: Path) -> list[Plant]:
             geo = wall(4, 121)
             s = replace(nominal, geometry=geo)
             plants.append(Plant(name, s, [], wall_prior(geo.fans), float('nan'), ['uniform:6', 'gaussian@F01_01']))
-        elif name in UNFAMILIAR:
+        elif name in UNFAMILIAR or name in OWN_TUNNELS:
+            effects, targets = OWN_TUNNELS.get(name) or (UNFAMILIAR[name], DEFAULT_OWN_TARGETS)
             s = Setup.load(_edited_config(tmp / f'unfamiliar{len(plants)}', {}))
-            prior, err, maps = _calibrated(s, UNFAMILIAR[name])
-            plants.append(Plant(name, s, UNFAMILIAR[name], prior, err,
-                                ['uniform', 'parabolic', 'gaussian@LM1'], maps))
-        elif name in OWN_TUNNELS:
-            effects, targets = OWN_TUNNELS[name]
-            s = Setup.load(_edited_config(tmp / f'own{len(plants)}', {}))
             prior, err, maps = _calibrated(s, effects)
-            plants.append(Plant(name, s, effects, prior, err, targets, maps))
+            plants.append(Plant(name, s, effects, prior, err, list(targets), maps))
         elif name in MIXES:
             plants.append(Plant(name, nominal, MIXES[name], nominal.load_model(), nominal.model_error(),
                                 ['uniform', 'parabolic']))
