@@ -81,7 +81,9 @@ class AdaptiveUpdate:
     smallest step [fraction] a pair may come from; secant_scale: prior size of the secant
     correction relative to the prior Jacobian's RMS column (sets its ridge); noise_std [N]:
     noise floor of a field estimate at a key point; memory: maps (besides the best one) the
-    fit and the secant use, the most recent first; weighting: weigh key points by
+    fit and the secant use, the most recent first (12: every map of a default-length run; a
+    shorter window dropped the first maps, whose different loads alone showed the load slope,
+    and the slope fell back to its prior mid-run); weighting: weigh key points by
     1 / (1 + (std / noise_std)^2); damping: Marquardt damping of every step (a fan's move
     costs damping x its column's squared norm; keeps nearly collinear fans of a dense wall
     from trading large opposite moves); idle_below [fraction]: a command below this is sent as
@@ -121,7 +123,7 @@ class AdaptiveUpdate:
     damping: float = 0.05
     idle_below: float = 0.02
     locality: float | None = None
-    memory: int = 8
+    memory: int = 12
     swirl: bool = True
     inner_iterations: int = 5
     stop_factor: float = 0.5
@@ -238,8 +240,8 @@ class AdaptiveUpdate:
             near = [np.exp(-(np.max(np.abs(U - U_b)) / self.locality) ** 2) for U, _, _, _ in maps]
         else:
             near = [1.0] * len(maps)
-        # the fit and the secant use the most recent `memory` maps and the base (old maps far
-        # from the operating point add little and cost time)
+        # the fit and the secant use the most recent `memory` maps and the base (a bound on the
+        # cost of long runs; a default-length run keeps all its maps)
         window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b})
         # The first update also fits the commissioning's maps (``UpdateInput.prior_maps``): the
         # run has one map, at the prior's optimum, and a step from a fit on it alone lands

@@ -270,3 +270,33 @@ def test_later_updates_weigh_each_commissioning_map_by_its_distance_from_the_bas
     assert rule._commissioning_weights(later, past, 1, None, base) == [0.0] * 4      # relearned
     assert AdaptiveUpdate(commissioning_reach=0.0)._commissioning_weights(later, past, 0, None, base) == [0.0] * 4
     assert rule._commissioning_weights(_replace(first, target=None), (), 0, None, base) == [0.0] * 4
+
+
+def test_a_run_of_the_default_length_keeps_what_its_first_maps_taught():
+    """A starved inlet: three maps at different loads teach the load slope, then eight sweeps
+    near one operating point. The shipped rule still fits the slope from the first maps at the
+    eleventh update (a window of 8 maps dropped them and the slope fell back to its prior, 0,
+    moving the next step by 0.03 PWM on nothing the sweeps had shown)."""
+    from wind_shaper.control.update import PastIteration, UpdateInput
+    setup = Setup.load()
+    sim = setup.make_sim(seed=0, effects=list(effects_from_config([{'name': 'plenum_starvation'}])))
+    kp, on = setup.geometry.key_points, setup.geometry.fans.enabled
+    target = setup.make_target('uniform').values(kp)
+    rng = np.random.default_rng(0)
+    operating = np.r_[np.full(6, 0.2), 0.55]
+    commands = ([np.full(7, 0.5), operating, np.r_[np.zeros(6), 0.5]]
+                + [operating + rng.uniform(-0.01, 0.01, 7) for _ in range(8)])
+    assert len(commands) <= setup.shaping.iterations     # a run of the default length
+    std = np.full(len(kp), 0.04)
+    maps = [PastIteration(U, sim.true_field(U, kp) + rng.normal(0, 0.04, len(kp)), std) for U in commands]
+    rule = setup.shaping.make_rule()
+
+    def step(n):
+        last = maps[n - 1]
+        return rule.step(UpdateInput(n - 1, last.U, target - last.mean, None, on, std=std,
+                                     model=setup.load_model(), key_points=kp, target=target,
+                                     history=tuple(maps[:n - 1])))
+    early, late = step(4), step(len(maps))
+    assert early.info['load_slope'] < -0.5          # the inlet's starving is learned ...
+    assert late.info['load_slope'] == pytest.approx(early.info['load_slope'], abs=0.15)   # ... and kept
+    assert np.max(np.abs(late.U_next - early.U_next)) < 0.015
