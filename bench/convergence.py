@@ -158,6 +158,12 @@ UNFAMILIAR = {
     'draft + reflection + current limit': [
         {'name': 'side_draft'}, {'name': 'wall_reflection'}, {'name': 'wall_return_flow'},
         {'name': 'esc_current_limit'}],
+    # written when the fit came to keep every map of a run, and run once before any change: the
+    # flow separating from one side of the diffuser past a total thrust, every fan on its own
+    # throttle curve, and a warm wall's buoyant tilt
+    'separation + curves + tilt': [
+        {'name': 'diffuser_separation'}, {'name': 'unequal_curves', 'spread': 0.2, 'seed': 3},
+        {'name': 'thermal_gradient'}],
 }
 #: Tunnels of the lab's own (``--tunnel FILE``): name -> (effects, targets).
 OWN_TUNNELS: dict = {}

@@ -12,7 +12,8 @@ pymavlink.
 from .effects import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, ElongatedFootprint, HiddenEffect,
                       JetInteraction, Swirl, TiltedFan, WallBoundaryLayer, WeakFan,
                       effects_from_config, make_effect, register_effects)
-from .coupled_effects import CoflowCarry, EscCurrentLimit, JetPairing, RecirculationCore, StallDip, SupplySag
+from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, JetPairing, RecirculationCore,
+                              StallDip, SupplySag)
 from .errors import CommandError, EffectError
 from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
@@ -35,7 +36,7 @@ __all__ = [
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
     'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection', 'SupplySag',
-    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
+    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'DiffuserSeparation', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
     'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'register_effects', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',

@@ -17,6 +17,9 @@ fans do.
 * ``EscCurrentLimit``: each ESC limits its motor's current, so each fan's thrust flattens off
   towards a ceiling of its own (not a coupling either, but a knee in the curve that the prior's
   polynomial per fan group does not have).
+* ``DiffuserSeparation``: past a total thrust the flow separates from one side of the diffuser
+  wall, and the fans on that side lose part of their force, the more the harder all fans blow
+  (a coupling that acts on one side only, so no shared slope of every fan's gain holds it).
 
 Positions [m, tunnel frame], thrusts and densities [N], commands [fraction 0..1].
 """
@@ -213,6 +216,45 @@ class EscCurrentLimit(HiddenEffect):
         return cap * np.tanh(t / cap)
 
 
-register_effects(SupplySag, RecirculationCore, JetPairing, StallDip, CoflowCarry, EscCurrentLimit)
+@dataclass(frozen=True)
+class DiffuserSeparation(HiddenEffect):
+    """The diffuser's wall on one side (towards ``direction`` [deg from +x]) is steeper than the
+    rest, and past a total thrust the flow separates from it: each fan loses the share
 
-__all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit']
+        loss_j = depth * w_j * s(T),   s(T) = 1 / (1 + exp(-(T - onset) / width)),
+
+    of its thrust, T = sum_k T_k [N] the fans' total thrust and w_j = max(0, cos(phi_j -
+    direction)) * r_j / r_max the fan's lean towards that side (phi_j, r_j its hub's angle and
+    radius; the central fan keeps its thrust). With the defaults an edge fan facing the wall
+    loses 4 % of its thrust at a total of 10 N, 15 % at 20 N and 26 % at 30 N."""
+
+    depth: float = 0.3
+    onset: float = 20.0
+    width: float = 5.0
+    direction: float = 30.0
+    name: ClassVar[str] = 'diffuser_separation'
+    priority: ClassVar[int] = 6   # on the thrust each fan delivers, after its ESC's limit
+    bounds: ClassVar = {'depth': (0.0, 0.9), 'onset': (0.0, 1000.0), 'width': (0.01, 1000.0),
+                        'direction': (-360.0, 360.0)}
+
+    def lean(self, geometry) -> np.ndarray:
+        """w_j (n_fans,): each fan's lean towards the separating side, 0..1."""
+        pos = np.asarray(geometry.fans.positions, dtype=float)
+        r = np.hypot(pos[:, 0], pos[:, 1])
+        if r.max() <= 0:
+            return np.zeros(len(r))
+        phi = np.arctan2(pos[:, 1], pos[:, 0])
+        return np.maximum(0.0, np.cos(phi - np.radians(self.direction))) * r / r.max()
+
+    def thrust(self, t, geometry):
+        t = np.asarray(t, dtype=float)
+        total = float(np.sum(np.maximum(t, 0.0)))
+        separated = 1.0 / (1.0 + np.exp(-(total - self.onset) / self.width))
+        return t * (1.0 - self.depth * separated * self.lean(geometry))
+
+
+register_effects(SupplySag, RecirculationCore, JetPairing, StallDip, CoflowCarry, EscCurrentLimit,
+                 DiffuserSeparation)
+
+__all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit',
+           'DiffuserSeparation']

@@ -295,6 +295,27 @@ def test_esc_current_limit_flattens_each_fan_towards_its_own_ceiling(perfect, ri
         EscCurrentLimit(spread=1.5)
 
 
+
+def test_diffuser_separation_takes_thrust_from_one_side_past_a_total(perfect, rig):
+    from wind_shaper.sim import DiffuserSeparation
+    sep = DiffuserSeparation(depth=0.3, onset=20.0, width=5.0, direction=30.0)
+    sim = perfect.with_effects([sep])
+    lean = sep.lean(rig)
+    assert lean[rig.fans.index('HM1')] == pytest.approx(1.0) and lean[rig.fans.index('CM')] == 0.0
+    assert np.all(lean[[rig.fans.index(f) for f in ('HM2', 'LM3', 'HM3')]] == 0.0)
+    low, high = np.full(7, 0.2), np.full(7, 0.65)
+    assert np.allclose(sim.thrust(low) / perfect.thrust(low), 1.0, atol=0.02)   # attached
+    cut = 1 - sim.thrust(high) / perfect.thrust(high)
+    facing = rig.fans.index('HM1')
+    assert cut[facing] > 0.2 and np.allclose(cut, cut[facing] * lean)   # only the steep side
+    # the other fans blowing harder separates the flow further: a coupling between fans
+    alone = np.r_[0.0, 0.5, np.zeros(5)]
+    others = np.r_[0.65, 0.5, np.full(5, 0.65)]
+    assert sim.thrust(others)[facing] < 0.95 * perfect.thrust(others)[facing]
+    assert sim.thrust(alone)[facing] == pytest.approx(perfect.thrust(alone)[facing], rel=0.02)
+    with pytest.raises(EffectError, match='depth'):
+        DiffuserSeparation(depth=1.5)
+
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
     sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])
