@@ -295,7 +295,6 @@ def test_esc_current_limit_flattens_each_fan_towards_its_own_ceiling(perfect, ri
         EscCurrentLimit(spread=1.5)
 
 
-
 def test_diffuser_separation_takes_thrust_from_one_side_past_a_total(perfect, rig):
     from wind_shaper.sim import DiffuserSeparation
     sep = DiffuserSeparation(depth=0.3, onset=20.0, width=5.0, direction=30.0)
@@ -315,6 +314,7 @@ def test_diffuser_separation_takes_thrust_from_one_side_past_a_total(perfect, ri
     assert sim.thrust(alone)[facing] == pytest.approx(perfect.thrust(alone)[facing], rel=0.02)
     with pytest.raises(EffectError, match='depth'):
         DiffuserSeparation(depth=1.5)
+
 
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
