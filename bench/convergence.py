@@ -164,6 +164,12 @@ UNFAMILIAR = {
     'separation + curves + tilt': [
         {'name': 'diffuser_separation'}, {'name': 'unequal_curves', 'spread': 0.2, 'seed': 3},
         {'name': 'thermal_gradient'}],
+    # written after the fit came to keep every map, and run once before any change: a plenum fed
+    # from one side (each fan starving by its own slope), the edge jets hemming the central one
+    # in, an ESC dead band and a jet stretched by a bent vane
+    'side inlet + confinement + dead band': [
+        {'name': 'side_inlet'}, {'name': 'jet_confinement'}, {'name': 'dead_band', 'threshold': 0.08},
+        {'name': 'elongated_footprint', 'fan': 'HM3', 'ratio': 1.5, 'angle': 0.8}],
 }
 #: Tunnels of the lab's own (``--tunnel FILE``): name -> (effects, targets).
 OWN_TUNNELS: dict = {}

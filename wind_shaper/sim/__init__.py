@@ -12,7 +12,8 @@ pymavlink.
 from .effects import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, ElongatedFootprint, HiddenEffect,
                       JetInteraction, Swirl, TiltedFan, WallBoundaryLayer, WeakFan,
                       effects_from_config, make_effect, register_effects)
-from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, JetPairing, RecirculationCore,
+from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, JetConfinement, JetPairing,
+                              RecirculationCore, SideInlet,
                               StallDip, SupplySag)
 from .errors import CommandError, EffectError
 from .noise import NoiseModel
@@ -36,7 +37,7 @@ __all__ = [
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
     'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection', 'SupplySag',
-    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'DiffuserSeparation', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
+    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'DiffuserSeparation', 'SideInlet', 'JetConfinement', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
     'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'register_effects', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',

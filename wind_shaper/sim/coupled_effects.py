@@ -20,6 +20,10 @@ fans do.
 * ``DiffuserSeparation``: past a total thrust the flow separates from one side of the diffuser
   wall, and the fans on that side lose part of their force, the more the harder all fans blow
   (a coupling that acts on one side only, so no shared slope of every fan's gain holds it).
+* ``SideInlet``: the fans draw their air from a plenum fed through one side, so the fans far
+  from the inlet starve more as the total flow grows (a load slope of its own for every fan).
+* ``JetConfinement``: the edge jets hem the central jet in, so it lands narrower and taller
+  the harder they blow (its force kept; a width that follows the other fans' commands).
 
 Positions [m, tunnel frame], thrusts and densities [N], commands [fraction 0..1].
 """
@@ -253,8 +257,80 @@ class DiffuserSeparation(HiddenEffect):
         return t * (1.0 - self.depth * separated * self.lean(geometry))
 
 
+@dataclass(frozen=True)
+class SideInlet(HiddenEffect):
+    """The plenum under the fans is fed through one side (towards ``direction`` [deg from +x]):
+    the air reaching a fan far from the inlet has lost more pressure on its way, so each fan
+    runs at the effective command
+
+        U_eff,j = U_j / (1 + coupling * mean_k U_k * (1 + spread * d_j)),
+
+    d_j = -(p_j . e) / r_max in [-1, 1] the fan's distance across the plenum away from the
+    inlet (p_j its hub, e the unit vector towards the inlet; the central fan 0). With the
+    defaults and every fan at 0.5 the fan beside the inlet runs at 0.48, the central one at
+    0.43 and the one across the plenum at 0.38. A plenum fed evenly (``plenum_starvation``)
+    slows every fan alike; here each fan has its own slope."""
+
+    coupling: float = 0.35
+    spread: float = 0.8
+    direction: float = 200.0
+    name: ClassVar[str] = 'side_inlet'
+    priority: ClassVar[float] = 2.5   # after an ESC dead band and an evenly fed plenum's loss
+    bounds: ClassVar = {'coupling': (0.0, 3.0), 'spread': (0.0, 1.0), 'direction': (-360.0, 360.0)}
+
+    def distance(self, geometry) -> np.ndarray:
+        """d_j (n_fans,): each hub's distance across the plenum from the inlet, -1..1."""
+        pos = np.asarray(geometry.fans.positions, dtype=float)
+        r_max = float(np.max(np.hypot(pos[:, 0], pos[:, 1])))
+        if r_max <= 0:
+            return np.zeros(len(pos))
+        a = np.radians(self.direction)
+        return -(pos @ np.array([np.cos(a), np.sin(a)])) / r_max
+
+    def command(self, u, geometry):
+        u = np.asarray(u, dtype=float)
+        enabled = geometry.fans.enabled
+        mean = max(float(np.mean(u[enabled])), 0.0) if enabled.any() else 0.0
+        return u / (1.0 + self.coupling * mean * (1.0 + self.spread * self.distance(geometry)))
+
+
+@dataclass(frozen=True)
+class JetConfinement(HiddenEffect):
+    """The edge jets hem the central jet in: it lands narrower, and taller by as much (its
+    force kept), the harder they blow. The central footprint's width is scaled by
+
+        1 / (1 + squeeze * T_e / (T_e + thrust_ref)),   its peak by the square of the inverse,
+
+    T_e the edge fans' mean thrust [N]. With the defaults and every edge fan at 3 N the central
+    jet is 11 % narrower and its peak 27 % higher. The central fan's width fitted per fan is
+    right for one load of the edge fans only."""
+
+    squeeze: float = 0.25
+    thrust_ref: float = 3.0
+    name: ClassVar[str] = 'jet_confinement'
+    priority: ClassVar[float] = 0.45   # on the jets as they land, before the edge jets move
+    bounds: ClassVar = {'squeeze': (0.0, 2.0), 'thrust_ref': (0.1, 100.0)}
+
+    def narrowing(self, edge_thrust: float) -> float:
+        """The central jet's width factor for the edge fans' mean thrust [N]."""
+        t = max(float(edge_thrust), 0.0)
+        return 1.0 / (1.0 + self.squeeze * t / (t + self.thrust_ref))
+
+    def sources(self, groups, thrust, geometry):
+        central = np.array(geometry.fans.groups) == 'central'
+        edge = ~central & geometry.fans.enabled
+        if not central.any() or not edge.any() or self.squeeze == 0:
+            return groups
+        k = self.narrowing(float(np.mean(np.maximum(np.asarray(thrust, dtype=float)[edge], 0.0))))
+        for g in groups:
+            jet = (g.fan >= 0) & central[np.maximum(g.fan, 0)]
+            g.width[jet] = g.width[jet] * k
+            g.amplitude[jet] = g.amplitude[jet] / k ** 2
+        return groups
+
+
 register_effects(SupplySag, RecirculationCore, JetPairing, StallDip, CoflowCarry, EscCurrentLimit,
-                 DiffuserSeparation)
+                 DiffuserSeparation, SideInlet, JetConfinement)
 
 __all__ = ['SupplySag', 'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit',
-           'DiffuserSeparation']
+           'DiffuserSeparation', 'SideInlet', 'JetConfinement']

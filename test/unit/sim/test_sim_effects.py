@@ -316,6 +316,50 @@ def test_diffuser_separation_takes_thrust_from_one_side_past_a_total(perfect, ri
         DiffuserSeparation(depth=1.5)
 
 
+def test_side_inlet_starves_the_fans_far_from_it_more_as_the_flow_grows(perfect, rig):
+    from wind_shaper.sim import SideInlet
+    inlet = SideInlet(coupling=0.35, spread=0.8, direction=200.0)
+    sim = perfect.with_effects([inlet])
+    d = inlet.distance(rig)
+    near, far = int(np.argmin(d)), int(np.argmax(d))
+    assert d[rig.fans.index('CM')] == pytest.approx(0.0) and d[near] < -0.9 and d[far] > 0.9
+    half = np.full(7, 0.5)
+    run = inlet.command(half, rig)
+    assert run[near] == pytest.approx(0.5 / (1 + 0.35 * 0.5 * (1 + 0.8 * d[near])))
+    assert run[far] < run[rig.fans.index('CM')] < run[near] < 0.5
+    # each fan's own slope: the far fan loses more of its thrust when the others open up
+    alone, crowd = np.zeros(7), np.full(7, 0.6)
+    alone[[near, far]] = 0.4
+    crowd[[near, far]] = 0.4
+    loss = 1 - sim.thrust(crowd) / perfect.thrust(crowd)
+    loss_alone = 1 - sim.thrust(alone) / perfect.thrust(alone)
+    assert loss[far] - loss_alone[far] > 1.5 * (loss[near] - loss_alone[near]) > 0
+    with pytest.raises(EffectError, match='spread'):
+        SideInlet(spread=2.0)
+
+
+def test_jet_confinement_narrows_the_central_jet_as_the_edge_jets_blow(perfect, rig):
+    from wind_shaper.sim import JetConfinement
+    squeeze = JetConfinement(squeeze=0.25, thrust_ref=3.0)
+    sim = perfect.with_effects([squeeze])
+    assert squeeze.narrowing(3.0) == pytest.approx(1 / 1.125)
+    centre = np.zeros((1, 2))
+    ring = np.array([[0.32 * np.cos(a), 0.32 * np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
+    only = np.r_[np.zeros(6), 0.5]
+    # the central fan alone: nothing hems it in
+    assert sim.point_field(only, centre) == pytest.approx(perfect.point_field(only, centre))
+    # with the edge fans blowing, taller over the middle and thinner at its rim than the sum
+    crowd = np.r_[np.full(6, 0.5), 0.5]
+    edge = np.r_[np.full(6, 0.5), 0.0]
+    gain = sim.point_field(crowd, centre) - sim.point_field(edge, centre)
+    plain = perfect.point_field(crowd, centre) - perfect.point_field(edge, centre)
+    assert gain[0] > 1.1 * plain[0]
+    assert np.all(sim.point_field(crowd, ring) - sim.point_field(edge, ring)
+                  < perfect.point_field(crowd, ring) - perfect.point_field(edge, ring))
+    with pytest.raises(EffectError, match='squeeze'):
+        JetConfinement(squeeze=-1.0)
+
+
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
     sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])
