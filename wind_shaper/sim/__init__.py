@@ -13,8 +13,7 @@ from .effects import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, ElongatedFootpr
                       JetInteraction, Swirl, TiltedFan, WallBoundaryLayer, WeakFan,
                       effects_from_config, make_effect, register_effects)
 from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, JetConfinement, JetPairing,
-                              RecirculationCore, SideInlet,
-                              StallDip, SupplySag)
+                              RecirculationCore, SideInlet, StallDip, SupplySag)
 from .errors import CommandError, EffectError
 from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
