@@ -63,10 +63,12 @@ def supervisors():
         assert all(gone(pid) for pid in sup.all_pids())
 
 
+#: A well-behaved child: it says hello from inside its clean path, so that a SIGINT sent as soon
+#: as the hello is read cannot land between the two (a loaded machine once put it there).
 RUNS = '''
 import signal, sys, time
-print("hello from", sys.argv[0].split("/")[-1], flush=True)
 try:
+    print("hello from", sys.argv[0].split("/")[-1], flush=True)
     while True:
         time.sleep(0.05)
 except KeyboardInterrupt:
@@ -259,8 +261,8 @@ def test_a_restarted_node_runs_again(script, supervisors, tmp_path):
         if not flag.exists():
             flag.write_text("x")
             raise SystemExit(-1)
-        print("second life", flush=True)
         try:
+            print("second life", flush=True)
             while True:
                 time.sleep(0.05)
         except KeyboardInterrupt:
@@ -280,8 +282,8 @@ import os, pathlib, sys, time
 beat = pathlib.Path(os.environ["WIND_SHAPER_HEARTBEAT"])
 hang_at = float(sys.argv[1]) if len(sys.argv) > 1 else float("inf")
 t0 = time.monotonic()
-print("beating", flush=True)
 try:
+    print("beating", flush=True)
     while True:
         if time.monotonic() - t0 < hang_at:      # then stuck, as a blocked executor is
             beat.touch()
