@@ -170,6 +170,12 @@ UNFAMILIAR = {
     'side inlet + confinement + dead band': [
         {'name': 'side_inlet'}, {'name': 'jet_confinement'}, {'name': 'dead_band', 'threshold': 0.08},
         {'name': 'elongated_footprint', 'fan': 'HM3', 'ratio': 1.5, 'angle': 0.8}],
+    # written with the random-tunnel benchmark (bench/random_tunnels.py), and run once before any
+    # change: a mesh screen above the fans spreading a share of every jet over the section (the
+    # more the slower they run), a warped vane's ripple, a weak fan and a draft across the exit
+    'screen + ripple + weak + draft': [
+        {'name': 'flow_screen', 'share': 0.35}, {'name': 'vane_ripple', 'depth': 0.1, 'direction': 75},
+        {'name': 'weak_fan', 'fan': 'LM2', 'gain': 0.85}, {'name': 'side_draft', 'dx': 0.04, 'dy': -0.03}],
 }
 #: Tunnels of the lab's own (``--tunnel FILE``): name -> (effects, targets).
 OWN_TUNNELS: dict = {}

@@ -19,6 +19,7 @@ QUICK = {
     'scale': ['--quick'],
     'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
                     '--targets', 'uniform'],
+    'random_tunnels': ['--quick'],
 }
 #: script -> why the smoke test leaves it out
 NOT_QUICK = {

@@ -12,8 +12,8 @@ pymavlink.
 from .effects import (HIDDEN_EFFECTS, BackgroundDraft, DeadBand, ElongatedFootprint, HiddenEffect,
                       JetInteraction, Swirl, TiltedFan, WallBoundaryLayer, WeakFan,
                       effects_from_config, make_effect, register_effects)
-from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, JetConfinement, JetPairing,
-                              RecirculationCore, SideInlet, StallDip, SupplySag)
+from .coupled_effects import (CoflowCarry, DiffuserSeparation, EscCurrentLimit, FlowScreen, JetConfinement,
+                              JetPairing, RecirculationCore, SideInlet, StallDip, SupplySag)
 from .errors import CommandError, EffectError
 from .noise import NoiseModel
 from .paths import RandomWalkPath, TourPath, path_from_config
@@ -36,7 +36,8 @@ __all__ = [
     'ThermalGradient', 'JetDeflection', 'EscCrosstalk', 'WallReturnFlow', 'VaneRipple',
     'JetSpreading', 'HubShadow', 'NeighbourStarvation', 'CoandaAttachment', 'WallLeak',
     'DragLaw', 'MocapLatency', 'CeilingDownwash', 'WallReflection', 'SupplySag',
-    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'DiffuserSeparation', 'SideInlet', 'JetConfinement', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
+    'RecirculationCore', 'JetPairing', 'StallDip', 'CoflowCarry', 'EscCurrentLimit', 'DiffuserSeparation', 'SideInlet', 'JetConfinement',
+    'FlowScreen', 'SensorZeroDrift', 'UnsettledFans', 'TIME_FAULTS',
     'OUTSIDE_LIBRARY', 'OUTSIDE_FRESH', 'OUTSIDE_SECOND', 'OUTSIDE_THIRD', 'OTHER_FORM',
     'effects_from_config', 'register_effects', 'EffectError', 'CommandError',
     'SimAutopilot', 'SimNetFtServer', 'NetFtFaults',

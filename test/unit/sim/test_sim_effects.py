@@ -361,6 +361,33 @@ def test_jet_confinement_narrows_the_central_jet_as_the_edge_jets_blow(perfect, 
         JetConfinement(squeeze=-1.0)
 
 
+def test_flow_screen_spreads_a_share_of_every_jet_that_falls_as_the_flow_grows(perfect, rig):
+    from wind_shaper.sim import FlowScreen
+    screen = FlowScreen(share=0.4, thrust_ref=10.0, exponent=0.33)
+    sim = perfect.with_effects([screen])
+    assert screen.taken(0.0) == pytest.approx(0.4)
+    assert screen.taken(20.0) == pytest.approx(0.4 * (10 / 30) ** 0.33)
+    assert screen.taken(5.0) > screen.taken(30.0) > 0
+    # the force is kept, only moved (hexagon fans: Gaussian footprints, whose force the screen
+    # counts exactly): integrated over a square wider than the tunnel
+    g = np.linspace(-0.9, 0.9, 181)
+    grid = np.column_stack([a.ravel() for a in np.meshgrid(g, g)])
+    cell = (g[1] - g[0]) ** 2
+    hexagon = np.r_[np.full(6, 0.5), 0.0]
+    assert (np.sum(sim.point_field(hexagon, grid)) * cell
+            == pytest.approx(np.sum(perfect.point_field(hexagon, grid)) * cell, rel=0.03))
+    # evener over the key points: a smaller spread about a mean that barely moves
+    kp = rig.key_points
+    plain, screened = perfect.true_field(hexagon, kp), sim.true_field(hexagon, kp)
+    assert np.std(screened) < 0.8 * np.std(plain)
+    # slow fans are evened out more: the screened field's spread against the plain one's
+    slow, fast = np.full(7, 0.25), np.full(7, 0.65)
+    evened = [np.std(sim.true_field(u, kp)) / np.std(perfect.true_field(u, kp)) for u in (slow, fast)]
+    assert evened[0] < evened[1] < 1
+    with pytest.raises(EffectError, match='share'):
+        FlowScreen(share=1.5)
+
+
 def test_esc_crosstalk_adds_a_share_of_the_source_command(perfect, rig, lone):
     from wind_shaper.sim import EscCrosstalk
     sim = perfect.with_effects([EscCrosstalk(fan='LM1', source='HM1', coupling=0.25)])

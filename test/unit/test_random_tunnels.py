@@ -1,0 +1,55 @@
+"""The random-tunnel benchmark's draw: reproducible, every drawn tunnel one the simulator
+builds (each parameter inside its effect's bounds), and every flow effect of the simulator
+in the catalogue, so an effect added later is drawn too or left out with a reason."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wind_shaper.app import Setup
+from wind_shaper.sim import HIDDEN_EFFECTS
+from wind_shaper.sim.effects import effects_from_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench_module import load_bench  # noqa: E402
+
+bench = load_bench('random_tunnels')
+
+
+def test_the_draw_depends_on_the_seed_alone():
+    a, b = bench.draw_tunnels(5, 7, 3), bench.draw_tunnels(5, 7, 3)
+    assert a == b
+    assert a != bench.draw_tunnels(5, 8, 3)
+    for tunnel in a:
+        names = [e['name'] for e in tunnel['effects']]
+        assert len(names) == 3 == len(set(names))
+        assert tunnel['name'].endswith(' + '.join(names))
+
+
+def test_every_drawn_tunnel_is_one_the_simulator_builds():
+    setup = Setup.load()
+    assert tuple(bench.FANS) == tuple(setup.geometry.fans.names)
+    for seed in range(40):
+        for tunnel in bench.draw_tunnels(4, seed, 3):
+            sim = setup.make_sim(seed=0, effects=list(effects_from_config(tunnel['effects'])))
+            assert np.all(np.isfinite(sim.true_field(np.full(7, 0.4), setup.geometry.key_points)))
+
+
+def test_every_flow_effect_of_the_simulator_is_drawn_or_left_out_with_a_reason():
+    shipped = {name for name, cls in HIDDEN_EFFECTS.items() if cls.__module__.startswith('wind_shaper.sim')}
+    assert not set(bench.CATALOGUE) & set(bench.LEFT_OUT)
+    assert shipped == set(bench.CATALOGUE) | set(bench.LEFT_OUT), sorted(
+        shipped ^ (set(bench.CATALOGUE) | set(bench.LEFT_OUT)))
+
+
+@pytest.mark.parametrize('args, says', [(['--effects', '0'], '--effects'),
+                                        (['--set', 'bogus=1'], 'bogus'),
+                                        (['--set', 'load_sd'], 'NAME=VALUE'),
+                                        (['--methods', 'warm+short,sideways'], 'sideways'),
+                                        (['--targets', 'uniform,lopsided'], 'lopsided')])
+def test_a_bad_argument_is_refused_before_any_run_with_what_was_wrong(args, says, capsys, tmp_path):
+    with pytest.raises(SystemExit):
+        bench.main(args + ['--json', str(tmp_path / 'out.json')])
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / 'out.json').exists() and not (tmp_path / 'random_tunnels').exists()
