@@ -19,6 +19,7 @@ convergence.py's: the shipped default never more than 2 % behind the flat start 
 Usage: python bench/random_tunnels.py [--count 12] [--seed 2026] [--effects 3] [--seeds 3]
                                       [--iterations 12] [--targets uniform,parabolic,gaussian@LM1]
                                       [--set NAME=VALUE ...] [--jobs N] [--quick] [--json FILE]
+       python bench/random_tunnels.py --summary-from bench/out/random_tunnels.json
 Results: bench/out/random_tunnels.json (--quick: random_tunnels_quick.json), the tunnel files in
 bench/out/random_tunnels/.
 """
@@ -151,6 +152,15 @@ def benchmark_tunnel(job) -> list[dict]:
     return rows
 
 
+def print_results(rows):
+    """The shipped default against the flat start per case (convergence.py's verdicts), then
+    one line per case: the ratios at k = 0, 1, 2, 4, 12, plate seconds, the std's calibration."""
+    convergence.print_warm_checks(rows)
+    print()
+    iterations = len(rows[0]['methods'][next(iter(rows[0]['methods']))]['median_ratio']) - 1 if rows else 0
+    convergence.print_summary(rows, ks=tuple(k for k in (0, 1, 2, 4, 12) if k <= iterations))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--count', type=int, default=12, help='tunnels to draw')
@@ -167,7 +177,12 @@ def main(argv=None):
                          'load_sd=0 (repeatable)')
     ap.add_argument('--jobs', type=int, default=1, help='tunnels benchmarked at once (processes)')
     ap.add_argument('--json', default=None)
+    ap.add_argument('--summary-from', default=None, metavar='JSON',
+                    help='print the verdicts and the table of a results file, run nothing')
     args = ap.parse_args(argv)
+    if args.summary_from:
+        print_results(json.loads(Path(args.summary_from).read_text())['cases'])
+        return
     if not 1 <= args.effects <= len(CATALOGUE):
         ap.error(f'--effects must be 1..{len(CATALOGUE)}, got {args.effects}')
     if args.quick:
@@ -212,9 +227,7 @@ def main(argv=None):
     else:
         done = [benchmark_tunnel(job) for job in jobs]
     rows = [row for tunnel_rows in done for row in tunnel_rows]
-    convergence.print_warm_checks(rows)
-    print()
-    convergence.print_summary(rows, ks=tuple(k for k in (0, 1, 2, 4, 12) if k <= args.iterations))
+    print_results(rows)
     print(f'\n({time.perf_counter() - t0:.0f} s)')
     meta = {'count': args.count, 'seed': args.seed, 'effects': args.effects, 'seeds': args.seeds,
             'iterations': args.iterations, 'targets': targets, 'methods': methods,

@@ -1,6 +1,7 @@
 """The random-tunnel benchmark's draw: reproducible, every drawn tunnel one the simulator
 builds (each parameter inside its effect's bounds), and every flow effect of the simulator
 in the catalogue, so an effect added later is drawn too or left out with a reason."""
+import json
 import sys
 from pathlib import Path
 
@@ -53,3 +54,19 @@ def test_a_bad_argument_is_refused_before_any_run_with_what_was_wrong(args, says
         bench.main(args + ['--json', str(tmp_path / 'out.json')])
     assert says in capsys.readouterr().err
     assert not (tmp_path / 'out.json').exists() and not (tmp_path / 'random_tunnels').exists()
+
+
+def test_the_docs_tables_come_from_the_results_files(capsys):
+    """docs/benchmarks.md's random-tunnel tables are printed from the committed results files,
+    one row per case, the paper's column (not run) left out."""
+    docs = (Path(__file__).resolve().parents[2] / 'docs' / 'benchmarks.md').read_text()
+    for name in ('random_tunnels.json', 'random_tunnels_2027.json'):
+        path = Path(bench.__file__).parent / 'out' / name
+        bench.main(['--summary-from', str(path)])
+        printed = capsys.readouterr().out.split('| case | shipped (warm start)')[1]
+        rows = [line for line in printed.splitlines() if line.startswith('| random')]
+        cases = json.loads(path.read_text())['cases']
+        assert len(rows) == len(cases) == 36
+        for row in rows:
+            cells = row.split(' | ')
+            assert ' | '.join(cells[:3] + cells[4:]) in docs, cells[0]

@@ -37,7 +37,7 @@ Its parts live beside it: ``basis`` (``FanBasis``, the prior fan by fan), ``shap
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -104,7 +104,12 @@ class AdaptiveUpdate:
     commissioning_reach [PWM fraction]: later updates fit them too, each weighed by
     exp(-(d / reach)^2) with d the largest difference of its commands from the base's (0: the
     first update only); ``info['commissioning_maps']`` says how many went in and
-    ``info['commissioning_weight']`` their summed weight.
+    ``info['commissioning_weight']`` their summed weight; commissioning_anchor: later updates
+    start their fit from what the commissioning's maps alone teach of each fan (the per-fan
+    correction fitted to them, as the prior's mean; its sd as before), so a fan the run has not
+    yet run, on which its maps say nothing, keeps what the commissioning showed instead of
+    falling back to the prior's gain once the far maps have faded (off after a first sweep that
+    contradicted the prior, or once the run has relearned).
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -135,6 +140,7 @@ class AdaptiveUpdate:
     load_sd: float = 0.0
     commissioning_weight: float = 1.0
     commissioning_reach: float = 0.15
+    commissioning_anchor: bool = True
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -277,6 +283,16 @@ class AdaptiveUpdate:
                            gain_common_sd=self.gain_common_sd, load_sd=self.load_sd)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
+                if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
+                        and relearn is None and fit_from == 0
+                        and not ((dict(history[0].info).get('warm_start') or {}).get('check') or {}).get('mismatch')):
+                    # what the commissioning taught of each fan is the prior of the later fits:
+                    # a fan the run has not run yet keeps it instead of falling back to the prior's
+                    anchor = [(np.asarray(p.U, float), np.asarray(p.mean, float),
+                               share * self.commissioning_weight * self.noise_std ** 2
+                               / (self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)))
+                              for p in inp.prior_maps]
+                    fit = replace(fit, prior_mean=tuple(fit.fit(basis, anchor, on)))
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
                 abs_maps += [(U, F, share * w) for U, F, w in broad]

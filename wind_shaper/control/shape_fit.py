@@ -66,6 +66,8 @@ class ShapeFit:
     noise_std: float = 0.1
     gain_common_sd: float = 0.0
     load_sd: float = 0.0
+    #: the parameters' prior means (theta's layout); None: gain 1, everything else 0
+    prior_mean: tuple | None = None
 
     @property
     def loaded(self) -> bool:
@@ -77,6 +79,8 @@ class ShapeFit:
         sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
         std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
                              + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded)
+        if self.prior_mean is not None:
+            mean = np.asarray(self.prior_mean, dtype=float).copy()
         return mean, std
 
     @staticmethod
@@ -142,7 +146,8 @@ class ShapeFit:
         if len(cache) > 64:
             cache.clear()
         for U, F, w in maps:
-            key = (self.bases, self.swirl, self.loaded, U.tobytes(), F.tobytes(), w.tobytes())
+            key = (self.bases, self.swirl, self.loaded, U.tobytes(), F.tobytes(), w.tobytes(),
+                   mean.tobytes())
             hit = cache.get(key)
             if hit is None:
                 a, _ = basis.thrust(U)

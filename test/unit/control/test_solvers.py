@@ -230,6 +230,24 @@ def test_shape_fit_recovers_a_weak_fan_and_a_shifted_jet(rig, prior, rng):
     assert theta[1 + 7 + 0] == pytest.approx(0.015, abs=0.002)
 
 
+def test_shape_fit_prior_mean_holds_where_the_maps_say_nothing(rig, prior, rng):
+    """A fan idle in every map keeps the gain of the prior mean it is given; the same maps with
+    another prior mean give another fit (the normal equations' cache is keyed by it too)."""
+    basis = FanBasis.from_term(prior, rig.key_points)
+    plain = ShapeFit(noise_std=0.05)
+    mean = plain.prior(7)[0].copy()
+    mean[1 + 6] = 0.6             # the central fan's gain, as the commissioning taught it
+    mean[1 + 3] = 0.7             # HM2's: the maps show it at 1
+    told = ShapeFit(noise_std=0.05, prior_mean=tuple(mean))
+    maps = []
+    for _ in range(2):
+        U = np.r_[rng.uniform(0.2, 0.6, 6), 0.0]          # the central fan idle
+        maps.append((U, basis.offset + basis.shape @ basis.thrust(U)[0], np.ones(len(rig.key_points))))
+    first, second = plain.fit(basis, maps, rig.fans.enabled), told.fit(basis, maps, rig.fans.enabled)
+    assert first[1 + 6] == pytest.approx(1.0) and second[1 + 6] == pytest.approx(0.6)
+    assert first[1 + 3] == pytest.approx(1.0, abs=0.02) and second[1 + 3] == pytest.approx(1.0, abs=0.02)
+
+
 def test_sparse_jacobian_equals_the_dense_one_on_a_wall(rng):
     fans = FanArray.grid(16, 16, 0.08)
     kp = rect_key_points(0.64, 0.64, 30, 30)

@@ -300,3 +300,39 @@ def test_a_run_of_the_default_length_keeps_what_its_first_maps_taught():
     assert early.info['load_slope'] < -0.5          # the inlet's starving is learned ...
     assert late.info['load_slope'] == pytest.approx(early.info['load_slope'], abs=0.15)   # ... and kept
     assert np.max(np.abs(late.U_next - early.U_next)) < 0.015
+
+
+def test_what_the_commissioning_taught_of_each_fan_is_the_prior_of_the_later_fits():
+    """A central fan 40 % weaker than the prior says, idle in the run's maps so far: the
+    commissioning's maps showed it running. With what they taught kept as the prior of the
+    second update's fit (``commissioning_anchor``), the step lands nearer the optimum than with
+    the prior's own gains (the far commissioning maps have faded from that fit by then)."""
+    from wind_shaper.control import AdaptiveUpdate
+    from wind_shaper.control.update import PastIteration, UpdateInput
+    setup = Setup.load()
+    sim = setup.make_sim(seed=0, effects=list(effects_from_config([{'name': 'weak_fan', 'fan': 'CM', 'gain': 0.6}])))
+    kp, on, model = setup.geometry.key_points, setup.geometry.fans.enabled, setup.load_model()
+    target = setup.make_target('uniform').values(kp)
+    std = np.full(len(kp), 0.03)
+
+    def error(U):
+        return float(np.mean((sim.true_field(U, kp) - target) ** 2))
+    errors = {False: [], True: []}
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+
+        def measure(U, info=None):
+            return PastIteration(np.asarray(U, float), sim.true_field(U, kp) + rng.normal(0, 0.03, len(kp)),
+                                 std, info=info or {})
+        commissioning = tuple(measure(rng.uniform(0.15, 0.6, 7)) for _ in range(5))
+        start = np.r_[np.full(6, 0.4), 0.0]       # the warm start idles the central fan
+        first = measure(start, {'warm_start': {'check': {'mismatch': False}}})
+        now = measure(start + np.r_[rng.uniform(-0.01, 0.01, 6), 0.0])
+        for anchor in (False, True):
+            step = AdaptiveUpdate(commissioning_anchor=anchor).step(
+                UpdateInput(1, now.U, target - now.mean, None, on, std=std, model=model, key_points=kp,
+                            target=target, history=(first,), prior_maps=commissioning))
+            errors[anchor].append(error(step.U_next))
+    # measured: 0.130 / 0.129 / 0.133 N^2 against 0.330 / 0.186 / 0.163
+    assert all(a < p for a, p in zip(errors[True], errors[False]))
+    assert np.mean(errors[True]) < 0.8 * np.mean(errors[False])
