@@ -198,12 +198,23 @@ class AdaptiveUpdate:
             return [0.0] * len(maps)
         if not history:
             return [self.commissioning_weight if inp.k == 0 else 0.0] * len(maps)
-        first = dict(history[0].info).get('warm_start') or {}
-        if (self.commissioning_reach <= 0 or relearn is not None or fit_from > 0
-                or (first.get('check') or {}).get('mismatch')):
+        if self.commissioning_reach <= 0 or not self._still_commissioned(history, fit_from, relearn):
             return [0.0] * len(maps)
         far = [float(np.max(np.abs(np.asarray(p.U, float) - U_b))) for p in maps]
         return [self.commissioning_weight * float(np.exp(-(d / self.commissioning_reach) ** 2)) for d in far]
+
+    @staticmethod
+    def _still_commissioned(history, fit_from: int, relearn) -> bool:
+        """Whether the tunnel is still the one the commissioning's maps describe: its first
+        sweep did not contradict the prior and the run has not relearned since."""
+        first = dict(history[0].info).get('warm_start') or {} if history else {}
+        return relearn is None and fit_from == 0 and not (first.get('check') or {}).get('mismatch')
+
+    def _fit_weight(self, past, weight: float) -> np.ndarray | float:
+        """A commissioning map's weight per key point in the fit: ``weight`` (against one of the
+        run's maps) times noise_std^2 / (noise_std^2 + its std^2)."""
+        n2 = self.noise_std ** 2
+        return weight * n2 / (n2 + (0.0 if past.std is None else np.asarray(past.std, float) ** 2))
 
     def step(self, inp: UpdateInput) -> UpdateStep:
         return self._step(inp, relearn=None)
@@ -256,9 +267,7 @@ class AdaptiveUpdate:
         # slopes and would hold the steps near the optimum to the prior's form.
         kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b))
                 if w > 1e-3 * self.commissioning_weight]   # fainter ones change no fit, cost time
-        broad = [(np.asarray(p.U, float), np.asarray(p.mean, float),
-                  w * self.noise_std ** 2 / (self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)))
-                 for p, w in kept]
+        broad = [(np.asarray(p.U, float), np.asarray(p.mean, float), self._fit_weight(p, w)) for p, w in kept]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
@@ -284,14 +293,11 @@ class AdaptiveUpdate:
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
-                        and relearn is None and fit_from == 0
-                        and not ((dict(history[0].info).get('warm_start') or {}).get('check') or {}).get('mismatch')):
+                        and self._still_commissioned(history, fit_from, relearn)):
                     # what the commissioning taught of each fan is the prior of the later fits:
                     # a fan the run has not run yet keeps it instead of falling back to the prior's
                     anchor = [(np.asarray(p.U, float), np.asarray(p.mean, float),
-                               share * self.commissioning_weight * self.noise_std ** 2
-                               / (self.noise_std ** 2 + (0.0 if p.std is None else np.asarray(p.std, float) ** 2)))
-                              for p in inp.prior_maps]
+                               share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
                     fit = replace(fit, prior_mean=tuple(fit.fit(basis, anchor, on)))
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
