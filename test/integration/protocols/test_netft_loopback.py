@@ -123,16 +123,19 @@ def test_records_after_a_stall_carry_the_values_of_their_sequence_numbers(rig, w
 def test_buffered_records_arrive_whole_in_order_and_stamped_by_their_sequence(rig, wait_for):
     """RDT buffering (several records per datagram, as a Net F/T can be set to send): every
     record arrives once, in order, with its own sample time's values, in a tenth as many
-    datagrams; a stream stopped mid-datagram still sends the records it had."""
+    datagrams; a stream stopped mid-datagram still sends the records it had. A server thread
+    held up (a loaded machine) skips ahead as a sensor's clock does: the numbers it skipped are
+    the only ones the client counts lost."""
     server, client, got = rig(records_per_datagram=10)
     client.start(sample_count=995)              # not a multiple of 10: the last datagram is short
     assert server.wait_idle(5.0, min_generated=995)
     log = server.fault_log()
     assert wait_for(lambda: client.stats.accepted == 995, 2.0), client.stats
     assert log.datagrams_sent == 100 and client.stats.datagrams == 100
-    assert client.stats.lost == 0 and client.stats.out_of_order == 0
+    assert client.stats.lost == log.late_skips and client.stats.out_of_order == 0
     seqs = [x.rdt_sequence for x in got.samples]
-    assert seqs == list(range(1, 996))
+    assert len(seqs) == 995 and all(b > a for a, b in zip(seqs, seqs[1:]))
+    assert seqs[-1] - seqs[0] + 1 == 995 + log.late_skips
     for x in got.samples:
         expected = wrench((x.rdt_sequence - 1) / RATE)
         assert all(abs(a - b) <= 1e-6 for a, b in zip(x.force + x.torque, expected))
