@@ -16,7 +16,7 @@ the same rule) run on the noisy simulator for every seed. The criteria are
 convergence.py's: the shipped default never more than 2 % behind the flat start at any k >= 2
 (medians over seeds) and within 5 % of the optimum by k = 2 wherever the flat start is by k = 4.
 
-Usage: python bench/random_tunnels.py [--count 12] [--seed 2026] [--effects 3] [--seeds 3]
+Usage: python bench/random_tunnels.py [--count 12] [--seed 2026] [--effects 3] [--seeds 5]
                                       [--iterations 12] [--targets uniform,parabolic,gaussian@LM1]
                                       [--set NAME=VALUE ...] [--jobs N] [--quick] [--json FILE]
        python bench/random_tunnels.py --summary-from bench/out/random_tunnels.json
@@ -166,7 +166,9 @@ def main(argv=None):
     ap.add_argument('--count', type=int, default=12, help='tunnels to draw')
     ap.add_argument('--seed', type=int, default=2026, help='the draw of the tunnels')
     ap.add_argument('--effects', type=int, default=3, help='effects per tunnel')
-    ap.add_argument('--seeds', type=int, default=3, help='runs per method and case')
+    ap.add_argument('--seeds', type=int, default=5,
+                    help='runs per method and case (from 4 on, each verdict also weighs the gap '
+                         'against the flat start\'s own gap between its two halves of seeds)')
     ap.add_argument('--iterations', type=int, default=12)
     ap.add_argument('--targets', default=','.join(convergence.DEFAULT_OWN_TARGETS))
     ap.add_argument('--methods', default=f'{convergence.SHIPPED},flat')
