@@ -24,7 +24,7 @@ and noise the turbulent model was not designed around (``wind_shaper.sim.noise``
 gusts on two time scales, Student-t turbulence, noise ~ F^1.5, a slow sensor drift, broadband
 von Karman gusts).
 
-Usage: python bench/field_std.py [--seeds 3] [--commands 6] [--tunnels a,b] [--quick] [--json FILE]
+Usage: python bench/field_std.py [--seeds 10] [--commands 6] [--tunnels a,b] [--quick] [--json FILE]
 Results: bench/out/field_std.json (bench/out/field_std_quick.json for --quick).
 """
 from __future__ import annotations
@@ -165,7 +165,7 @@ def print_table(rows: dict, meta: dict):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('--seeds', type=int, default=3)
+    ap.add_argument('--seeds', type=int, default=10)
     ap.add_argument('--commands', type=int, default=6, help='random commands (one sweep each) per seed')
     ap.add_argument('--tunnels', default=None, help=f'comma-separated, of: {", ".join(TUNNELS)}')
     ap.add_argument('--samples', type=int, default=None, help='samples per sweep (default: shaping.yaml)')
