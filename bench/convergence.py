@@ -92,6 +92,9 @@ from wind_shaper.sim import effects_from_config  # noqa: E402
 WITHIN = 1.05
 #: The warm-start check: the shipped default no worse than the flat start by more than this ratio.
 BEHIND = 1.02
+#: Sweeps whose true error is within this many times zeta* count as near the optimum (the
+#: scatter of their measured error, ``sweep_error_sd``, is the yardstick of the gaps there).
+NEAR = 1.2
 PAPER_SWEEPS = 13          # 12 iterations of the paper's protocol and the final measurement
 METHODS = {
     'paper': {'rule': {'method': 'paper'}, 'u0': 0.5, 'short': False},
@@ -426,14 +429,15 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error,
                        prior_maps=plant.prior_maps)
-    out = {'mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [], 'mismatch': None,
-           'restart': None, 'relearned': 0, 'z': []}
+    out = {'mse': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
+           'mismatch': None, 'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):
         c0, s0 = time.thread_time(), tunnel.cpu
         rec = loop.iterate(update=i < iterations)
         out['cpu_s'].append(time.thread_time() - c0 - (tunnel.cpu - s0))
         true = sim.true_field(rec.pwm, kp)
         out['mse'].append(float(np.mean((true - target_values) ** 2)))
+        out['measured_mse'].append(float(np.mean((rec.estimate.mean - target_values) ** 2)))
         out['z'].extend(((rec.estimate.mean - true) / np.maximum(rec.estimate.std, 1e-12)).tolist())
         out['relearned'] += bool(rec.info.get('relearned'))
         out['plate_s'].append(rec.plate_s)
@@ -453,6 +457,18 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
 def first_within(ratios) -> int | None:
     hit = np.flatnonzero(np.asarray(ratios) <= WITHIN)
     return int(hit[0]) if len(hit) else None
+
+
+def sweep_error_sd(runs: list[dict], zs: float, near: float = NEAR) -> float:
+    """The scatter [N^2] of one sweep's measured error about its true error, near the optimum:
+    the sd over seeds and sweeps of mean_i (estimate - target)^2 - mean_i (true - target)^2 at
+    the key points, over the sweeps whose true error is within ``near`` x zeta*. Two commands
+    whose true errors differ by less than this cannot be told apart by one sweep at each (the
+    estimate's error enters the measured error twice: its own square and its product with the
+    field's residual, which grows with zeta*). NaN with fewer than 5 such sweeps or no
+    measured errors (results recorded before this was kept)."""
+    d = [m - t for r in runs for m, t in zip(r.get('measured_mse', ()), r['mse']) if t <= near * zs]
+    return float(np.std(d, ddof=1)) if len(d) >= 5 else float('nan')
 
 
 def summarise(runs: list[dict], zs: float) -> dict:
@@ -487,6 +503,7 @@ def summarise(runs: list[dict], zs: float) -> dict:
         'z_rms': float(np.sqrt(np.mean(np.square(np.concatenate([r['z'] for r in runs]))))),
         'z_outside_2sigma': float(np.mean(np.abs(np.concatenate([r['z'] for r in runs])) > 2.0)),
         'ratio_per_seed': R.round(4).tolist(),
+        'sweep_error_sd_N2': sweep_error_sd(runs, zs),
     }
 
 
@@ -688,17 +705,20 @@ def seed_half_gap(per_seed) -> np.ndarray:
     return np.maximum(a / b, b / a)
 
 
-def behind_flat(shipped, flat) -> dict:
+def behind_flat(shipped, flat, zs: float = float('nan')) -> dict:
     """The shipped default against the flat start (both dicts of ``summarise``): the worst
     ratio of their medians at k >= 2, its k, the seeds behind by more than 2 % at that k (the
     same seeds run both), the flat start's own seed-half gap, and whether the worst ratio is
     beyond both 2 % and that gap (None below 4 seeds). Like the worst ratio, the gap is the
     largest over k >= 2: the test takes the worst of a dozen iterations, and so does the same
-    method on other seeds."""
+    method on other seeds. With zeta* ``zs`` [N^2]: the gap between the medians at that k in
+    N^2 and as a multiple of one sweep's error scatter near the optimum (``sweep_error_sd``,
+    both starts' pooled; NaN where the results do not have it)."""
     r, q = np.asarray(shipped['median_ratio']), np.asarray(flat['median_ratio'])
     if len(r) < 3:
         return {'worst': float('nan'), 'k': None, 'seeds_behind': 0, 'seeds': 0,
-                'self_gap': float('nan'), 'beyond_noise': None}
+                'self_gap': float('nan'), 'beyond_noise': None, 'gap_N2': float('nan'),
+                'gap_sweeps': float('nan')}
     ratio = r / q
     k = 2 + int(np.argmax(ratio[2:]))
     S, F = np.asarray(shipped['ratio_per_seed']), np.asarray(flat['ratio_per_seed'])
@@ -706,9 +726,13 @@ def behind_flat(shipped, flat) -> dict:
     gaps = seed_half_gap(F[:n])[2:]
     gap = float(np.max(gaps)) if gaps.size and np.all(np.isfinite(gaps)) else float('nan')
     worst = float(ratio[k])
+    gap_n2 = float((r[k] - q[k]) * zs)
+    sds = [m.get('sweep_error_sd_N2', float('nan')) for m in (shipped, flat)]
+    sweep_sd = float(np.sqrt(np.mean(np.square(sds))))
     return {'worst': worst, 'k': k, 'seeds_behind': int(np.sum(S[:n, k] / F[:n, k] > BEHIND)),
             'seeds': n, 'self_gap': gap,
-            'beyond_noise': None if np.isnan(gap) else bool(worst > BEHIND and worst > gap)}
+            'beyond_noise': None if np.isnan(gap) else bool(worst > BEHIND and worst > gap),
+            'gap_N2': gap_n2, 'gap_sweeps': gap_n2 / sweep_sd if sweep_sd > 0 else float('nan')}
 
 
 def print_warm_checks(rows):
@@ -717,7 +741,9 @@ def print_warm_checks(rows):
     where the prior is right (the flat start needs no restart and the warm start is within 5 %
     at k = 0) within 5 % from k = 0 and 3 % from k = 2. With 4 seeds or more, each gap is also
     set against the flat start's own largest gap between its two halves of seeds
-    (``seed_half_gap``, ``behind_flat``): a gap within it is what other seeds could give. Then
+    (``seed_half_gap``, ``behind_flat``): a gap within it is what other seeds could give; and,
+    where the results keep the measured errors, against the scatter of one sweep's measured error
+    near the optimum (``sweep_error_sd``): a smaller gap is one a lab could not see. Then
     the field estimate's calibration: z = (estimate - true field) / std at the key points, its
     RMS and the share outside 2 sigma."""
     print('\nShipped default (warm start) against the flat start, medians over seeds: worst '
@@ -728,7 +754,8 @@ def print_warm_checks(rows):
     print('| case | worst shipped/flat, k >= 2 | flat\'s own seed-half gap | shipped k to 1.05 | '
           'flat k to 1.05 | restarts | relearned | z RMS | outside 2 sigma |')
     print('|---|---|---|---|---|---|---|---|---|')
-    counts = {'behind': 0, 'beyond': 0, 'misses': 0, 'cases': 0, 'gap_known': False}
+    counts = {'behind': 0, 'beyond': 0, 'misses': 0, 'cases': 0, 'gap_known': False,
+              'beyond_sweep': 0, 'sweep_known': False}
     for row in rows:
         m, f = row['methods'].get(SHIPPED), row['methods'].get('flat')
         if m is None:
@@ -737,7 +764,7 @@ def print_warm_checks(rows):
         k_m = first_within(r)
         if f is not None:
             counts['cases'] += 1
-            b = behind_flat(m, f)
+            b = behind_flat(m, f, row.get('zeta_star_N2', float('nan')))
             counts['gap_known'] |= b['beyond_noise'] is not None
             k_f = first_within(f['median_ratio'])
             verdict = 'ok' if b['worst'] <= BEHIND else 'MISSED'
@@ -746,6 +773,10 @@ def print_warm_checks(rows):
                 counts['beyond'] += bool(b['beyond_noise'])
                 if b['beyond_noise'] is False:
                     verdict += ' (within the seeds\' spread)'
+                if np.isfinite(b['gap_sweeps']):
+                    counts['sweep_known'] = True
+                    counts['beyond_sweep'] += bool(b['gap_sweeps'] > 1)
+                    verdict += f" (gap {b['gap_sweeps']:.1f} x one sweep's error scatter)"
             if k_f is not None and k_f <= 4 and (k_m is None or k_m > 2):
                 verdict += ', 1.05 by k=2 MISSED'
                 counts['misses'] += 1
@@ -759,9 +790,11 @@ def print_warm_checks(rows):
     if counts['cases']:
         beyond = (f"{counts['beyond']} of them beyond the flat start's own seed-half gap"
                   if counts['gap_known'] else 'the seeds too few (< 4) to halve')
+        sweep = (f", {counts['beyond_sweep']} by more than one sweep's error scatter near the "
+                 f"optimum" if counts['sweep_known'] else '')
         print(f"\nOf {counts['cases']} cases: {counts['behind']} more than 2 % behind the flat start at "
-              f"some k >= 2, {beyond}; {counts['misses']} not within 5 % by k = 2 where the flat "
-              f"start is by k = 4")
+              f"some k >= 2, {beyond}{sweep}; {counts['misses']} not within 5 % by k = 2 where the "
+              f"flat start is by k = 4")
 
 
 def print_summary(rows, ks=(0, 1, 2, 4, 12)):

@@ -84,6 +84,32 @@ def test_a_gap_to_the_flat_start_is_set_against_the_flat_starts_own_gap_on_other
     assert conv.behind_flat(summary(steady), summary(steady))['beyond_noise'] is False
 
 
+def test_a_gap_is_set_against_the_scatter_of_one_sweeps_measured_error_near_the_optimum():
+    """The scatter is that of measured minus true error over the sweeps within 1.2 x zeta*
+    (the far ones, whose estimate error meets a larger residual, do not count), and the gap
+    between the starts' medians is stated in N^2 and in that scatter."""
+    conv = _load('convergence')
+    rng = np.random.default_rng(1)
+    zs = 0.08
+    runs = []
+    for _ in range(50):
+        true = zs * np.array([5.0, 1.5, 1.1, 1.05, 1.02, 1.0])
+        scatter = np.where(true <= 1.2 * zs, 0.005, 0.5)          # far sweeps scatter a lot
+        runs.append({'mse': true.tolist(), 'measured_mse': (true + 0.003 + scatter * rng.standard_normal(6)).tolist()})
+    sd = conv.sweep_error_sd(runs, zs)
+    assert 0.0042 < sd < 0.0058                                   # the near sweeps' 0.005 alone
+    assert np.isnan(conv.sweep_error_sd([{'mse': r['mse']} for r in runs], zs))   # not recorded
+    R = np.array([r['mse'] for r in runs]) / zs
+    flat = {'median_ratio': np.median(R, 0).tolist(), 'ratio_per_seed': R.tolist(), 'sweep_error_sd_N2': sd}
+    behind = R * np.where(np.arange(6) == 3, 1.2, 1.0)            # 0.2 x 1.05 x zeta* = 0.0168 N^2 at k = 3
+    shipped = {'median_ratio': np.median(behind, 0).tolist(), 'ratio_per_seed': behind.tolist(),
+               'sweep_error_sd_N2': sd}
+    b = conv.behind_flat(shipped, flat, zs)
+    assert b['k'] == 3 and b['gap_N2'] == pytest.approx(0.2 * 1.05 * zs, rel=1e-6)
+    assert b['gap_sweeps'] == pytest.approx(b['gap_N2'] / sd, rel=1e-6) and b['gap_sweeps'] > 2
+    assert np.isnan(conv.behind_flat(shipped, flat)['gap_sweeps'])     # zeta* not given
+
+
 @pytest.mark.parametrize('how,source', [('sweeps:4', 'moving-plate sweeps'), ('held', 'bench calibration')])
 def test_a_calibrated_plant_is_commissioned_as_asked(how, source, tmp_path, monkeypatch):
     conv = _load('convergence')
