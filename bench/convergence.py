@@ -771,12 +771,13 @@ def print_warm_checks(rows):
             if b['worst'] > BEHIND:
                 counts['behind'] += 1
                 counts['beyond'] += bool(b['beyond_noise'])
-                if b['beyond_noise'] is False:
-                    verdict += ' (within the seeds\' spread)'
+                notes = ['within the seeds\' spread'] if b['beyond_noise'] is False else []
                 if np.isfinite(b['gap_sweeps']):
                     counts['sweep_known'] = True
                     counts['beyond_sweep'] += bool(b['gap_sweeps'] > 1)
-                    verdict += f" (gap {b['gap_sweeps']:.1f} x one sweep's error scatter)"
+                    notes.append(f"gap {b['gap_sweeps']:.1f} x one sweep's error scatter")
+                if notes:
+                    verdict += f" ({'; '.join(notes)})"
             if k_f is not None and k_f <= 4 and (k_m is None or k_m > 2):
                 verdict += ', 1.05 by k=2 MISSED'
                 counts['misses'] += 1
@@ -792,6 +793,13 @@ def print_warm_checks(rows):
                   if counts['gap_known'] else 'the seeds too few (< 4) to halve')
         sweep = (f", {counts['beyond_sweep']} by more than one sweep's error scatter near the "
                  f"optimum" if counts['sweep_known'] else '')
+        rel = [m['sweep_error_sd_N2'] / row['zeta_star_N2'] for row in rows
+               for m in [row['methods'].get(SHIPPED)] if m is not None and row.get('zeta_star_N2')
+               and np.isfinite(m.get('sweep_error_sd_N2', float('nan')))]
+        if rel:
+            print(f"\nOne sweep's measured error near the optimum (true error within {NEAR} x the "
+                  f"best) scatters about the true one by {100 * min(rel):.1f}-{100 * max(rel):.1f} % "
+                  f"of the best error (median {100 * float(np.median(rel)):.1f} %; shipped runs)")
         print(f"\nOf {counts['cases']} cases: {counts['behind']} more than 2 % behind the flat start at "
               f"some k >= 2, {beyond}{sweep}; {counts['misses']} not within 5 % by k = 2 where the "
               f"flat start is by k = 4")
