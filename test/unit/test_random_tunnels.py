@@ -60,7 +60,8 @@ def test_the_docs_tables_come_from_the_results_files(capsys):
     """docs/benchmarks.md's random-tunnel tables are printed from the committed results files,
     one row per case, the paper's column (not run) left out."""
     docs = (Path(__file__).resolve().parents[2] / 'docs' / 'benchmarks.md').read_text()
-    for name in ('random_tunnels.json', 'random_tunnels_2027.json', 'random_tunnels_2028.json'):
+    for name in ('random_tunnels.json', 'random_tunnels_2027.json', 'random_tunnels_2028.json',
+                 'random_tunnels_2029.json'):
         path = Path(bench.__file__).parent / 'out' / name
         bench.main(['--summary-from', str(path)])
         printed = capsys.readouterr().out.split('| case | shipped (warm start)')[1]
