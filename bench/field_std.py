@@ -24,7 +24,8 @@ and noise the turbulent model was not designed around (``wind_shaper.sim.noise``
 gusts on two time scales, Student-t turbulence, noise ~ F^1.5, a slow sensor drift, broadband
 von Karman gusts).
 
-Usage: python bench/field_std.py [--seeds 10] [--commands 6] [--tunnels a,b] [--quick] [--json FILE]
+Usage: python bench/field_std.py [--seeds 10] [--commands 6] [--tunnels a,b] [--quick]
+                                 [--estimator NAME=VALUE ...] [--json FILE]
 Results: bench/out/field_std.json (bench/out/field_std_quick.json for --quick).
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -100,11 +102,14 @@ def _timed(fn, *args, **kw):
     return out, time.thread_time() - c
 
 
-def run_tunnel(setup: Setup, name: str, seeds, n_commands: int, n_samples: int) -> dict:
+def run_tunnel(setup: Setup, name: str, seeds, n_commands: int, n_samples: int,
+               settings: dict | None = None) -> dict:
+    """One tunnel's calibration; ``settings``: estimator settings over shaping.yaml's (every
+    estimator gets them)."""
     kp = setup.geometry.key_points
     on = setup.geometry.fans.enabled
     lo, hi = setup.shaping.u_min + 0.2, setup.shaping.u_max
-    ests = estimators(setup.shaping.make_estimator(setup.load_model()))
+    ests = estimators(replace(setup.shaping.make_estimator(setup.load_model()), **(settings or {})))
     z = {k: [] for k in ests}
     err = {k: [] for k in ests}
     cpu = {k: [] for k in [*ests, 'turbulent reuse']}
@@ -171,8 +176,16 @@ def main(argv=None):
     ap.add_argument('--samples', type=int, default=None, help='samples per sweep (default: shaping.yaml)')
     ap.add_argument('--quick', action='store_true',
                     help=f'{" and ".join(QUICK)}, 1 seed, 2 commands, 500-sample sweeps (seconds)')
+    ap.add_argument('--estimator', action='append', default=[], metavar='NAME=VALUE',
+                    help='an estimator setting over shaping.yaml\'s, e.g. long_run_span_s=2 (repeatable)')
     ap.add_argument('--json', default=None)
     args = ap.parse_args(argv)
+    settings = {}
+    for kv in args.estimator:
+        key, sep, value = kv.partition('=')
+        if not sep:
+            ap.error(f'--estimator takes NAME=VALUE; got {kv!r}')
+        settings[key] = json.loads(value) if value[:1] in '0123456789-[{tf' else value
     setup = Setup.load()
     names = QUICK if args.quick else (args.tunnels.split(',') if args.tunnels else list(TUNNELS))
     unknown = [n for n in names if n not in TUNNELS]
@@ -185,11 +198,11 @@ def main(argv=None):
     t0 = time.perf_counter()
     rows = {}
     for name in names:
-        rows[name] = run_tunnel(setup, name, seeds, n_commands, n_samples)
+        rows[name] = run_tunnel(setup, name, seeds, n_commands, n_samples, settings)
         t = rows[name]['turbulent']
         print(f"{name:32s} z RMS white {rows[name]['white']['z_rms']:.2f}, turbulent {t['z_rms']:.2f}; "
               f"out 2σ {100 * t['out_2sigma']:.1f} %", flush=True)
-    meta = {'seeds': len(seeds), 'commands': n_commands, 'samples': n_samples,
+    meta = {'seeds': len(seeds), 'commands': n_commands, 'samples': n_samples, 'estimator': settings,
             'key_points': len(setup.geometry.key_points), 'machine': f'{platform.machine()}, '
             f'{os.cpu_count()} cores', 'date': time.strftime('%Y-%m-%d'), 'seconds': 0.0,
             'command': 'python bench/field_std.py ' + ' '.join(argv if argv is not None else sys.argv[1:]),

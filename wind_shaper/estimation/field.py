@@ -420,6 +420,11 @@ class FieldEstimator:
     #: run when fit_run_s is 0 or the samples' times do not advance (0: no limit; with
     #: fit_run_s 0 the exact likelihood, n^3 per step)
     fit_block: int = 240
+    #: turbulent model, exact GP: scale each sweep's std by the long-run variance of its
+    #: whitened residuals over lags up to this span [s], where above 1
+    #: (``estimation.turbulent.long_run_scale``): gusts slower than the fitted gust time, which
+    #: one sweep cannot tell from the field, then widen the std instead of hiding in it; 0: off
+    long_run_span_s: float = 0.0
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
@@ -445,6 +450,9 @@ class FieldEstimator:
         if not (isinstance(self.fit_run_s, (int, float)) and 0 <= self.fit_run_s <= 600):
             raise ConfigError(f'estimator fit_run_s must be 0 (runs of fit_block samples) or up to '
                               f'600 s; got {self.fit_run_s!r}')
+        if not (isinstance(self.long_run_span_s, (int, float)) and 0 <= self.long_run_span_s <= 10):
+            raise ConfigError(f'estimator long_run_span_s must be 0 (off) or a span of up to '
+                              f'10 s; got {self.long_run_span_s!r}')
         if not (isinstance(self.sample_window_s, (int, float)) and 0 <= self.sample_window_s <= 1):
             raise ConfigError(f'estimator sample_window_s must be 0 (the closest samples) or a '
                               f'window of up to 1 s; got {self.sample_window_s!r}')
@@ -511,7 +519,7 @@ class FieldEstimator:
                 make = partial(LocalTurbulentGaussianProcessField, tile=self.local_block,
                                halo=self.local_halo, max_fit_samples=self.max_fit_samples)
             else:
-                make = TurbulentGaussianProcessField
+                make = partial(TurbulentGaussianProcessField, long_run_span_s=self.long_run_span_s)
             if isinstance(old, TurbulentGaussianProcessField) and (old.fitted_ or old.reused_):
                 gp = make(old.params_, self.fit_bounds, fit_parameters=False, block=self.fit_runs(times))
                 gp.reused_ = True   # fitted values, carried on (they may be reused again)

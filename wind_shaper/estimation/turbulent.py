@@ -309,9 +309,12 @@ class TurbulentGaussianProcessField:
     start: the ``TurbulenceParameters`` to fit from, and to use as they are when the sweep has
     fewer than ``min_fit_samples`` samples or ``fit_parameters`` is False; bounds: name ->
     (low, high), overriding ``TURBULENCE_BOUNDS``; block: samples per run of the composite
-    likelihood (``fit_turbulence``); max_iter: L-BFGS-B iterations.
+    likelihood (``fit_turbulence``); max_iter: L-BFGS-B iterations; long_run_span_s [s]: scale
+    the std by the whitened residuals' long-run variance over lags up to this span
+    (``long_run_scale``; 0: off).
 
-    ``fit(positions, forces, times)`` returns self. Fitted state: ``params_`` (the parameters
+    ``fit(positions, forces, times)`` returns self. Fitted state: ``std_scale_`` (the factor
+    the std is scaled by, >= 1), ``params_`` (the parameters
     used), ``fitted_`` (True when estimated from this sweep, False for the start values),
     ``evaluations_`` (likelihood evaluations of the fit), ``log_likelihood_`` [nats, exact],
     ``mean_`` [N] (the prior mean: the forces' mean), ``level_`` (n,) [N] (each sample's force
@@ -321,7 +324,7 @@ class TurbulentGaussianProcessField:
 
     def __init__(self, start: TurbulenceParameters = TurbulenceParameters(), bounds: Mapping | None = None,
                  fit_parameters: bool = True, min_fit_samples: int = 60, block: int = 80,
-                 max_iter: int = 40, length_prior: tuple | None = None):
+                 max_iter: int = 40, length_prior: tuple | None = None, long_run_span_s: float = 0.0):
         if not (isinstance(min_fit_samples, int) and min_fit_samples >= 10):
             raise ConfigError(f'min_fit_samples must be a whole number >= 10; got {min_fit_samples!r}')
         if not (isinstance(block, int) and (block == 0 or block >= 10)):
@@ -339,6 +342,10 @@ class TurbulentGaussianProcessField:
                 raise ConfigError(f'length_prior must be (length [m] > 0, sd > 0); got {length_prior!r}')
             length_prior = (length, sd)
         self.length_prior = length_prior
+        if not (isinstance(long_run_span_s, (int, float)) and 0 <= long_run_span_s <= 10):
+            raise ConfigError(f'long_run_span_s must be 0 (off) or a span of up to 10 s; got '
+                              f'{long_run_span_s!r}')
+        self.long_run_span_s = float(long_run_span_s)
         #: True when the start values are an earlier sweep's fitted ones (``FieldEstimator.make_gp``)
         self.reused_ = False
 
@@ -396,6 +403,10 @@ class TurbulentGaussianProcessField:
         self.alpha_ = cho_solve((L, True), y - self.mean_, check_finite=False)
         self.log_likelihood_ = float(-0.5 * (y - self.mean_) @ self.alpha_ - np.sum(np.log(np.diag(L)))
                                      - 0.5 * len(y) * np.log(2 * np.pi))
+        self.std_scale_ = 1.0
+        if self.long_run_span_s > 0:
+            white = solve_triangular(L, y - self.mean_, lower=True, check_finite=False)
+            self.std_scale_ = long_run_scale(white, t, self.long_run_span_s)
         return self
 
     def kernel(self, A, B) -> np.ndarray:
@@ -415,7 +426,7 @@ class TurbulentGaussianProcessField:
             return mean
         v = solve_triangular(self.L_, Ks.T, lower=True, check_finite=False)
         var = self.params_.signal_std ** 2 - np.einsum('ij,ij->j', v, v)
-        return mean, np.sqrt(np.maximum(var, 0.0))
+        return mean, getattr(self, 'std_scale_', 1.0) * np.sqrt(np.maximum(var, 0.0))
 
     def log_marginal_likelihood(self) -> float:
         """log p(forces | positions, times) of the fitted model [nats]."""
@@ -424,5 +435,27 @@ class TurbulentGaussianProcessField:
         return self.log_likelihood_
 
 
-__all__ = ['TURBULENCE_BOUNDS', 'TurbulenceParameters', 'TurbulentGaussianProcessField',
+def long_run_scale(white, times, span_s: float) -> float:
+    """How much a local average's std is underrated by the fitted noise model, from a sweep's
+    whitened residuals ``white`` (L^-1 (y - mean), time order; unit variance and uncorrelated
+    when the model holds) at sample times ``times`` [s]: the square root of their long-run
+    variance (Bartlett weights over lags up to ``span_s`` [s]) where it exceeds 1, else 1.
+    Gusts slower than the fitted gust time leave the residuals correlated over seconds; within
+    one sweep they cannot be told from the field by the likelihood, but their correlation
+    shows here. Never below 1: a sweep's value scatters, and a std made smaller on a lucky
+    sweep would claim more than the model can."""
+    w = np.asarray(white, dtype=float)
+    t = np.asarray(times, dtype=float)
+    n = len(w)
+    if n < 20 or span_s <= 0:
+        return 1.0
+    step = float(np.median(np.diff(t)))
+    lags = int(min(n // 4, max(1, round(span_s / step)))) if step > 0 else 1
+    lrv = float(w @ w) / n
+    for lag in range(1, lags + 1):
+        lrv += 2.0 * (1.0 - lag / (lags + 1)) * float(w[:-lag] @ w[lag:]) / n
+    return float(np.sqrt(lrv)) if lrv > 1.0 else 1.0
+
+
+__all__ = ['TURBULENCE_BOUNDS', 'long_run_scale', 'TurbulenceParameters', 'TurbulentGaussianProcessField',
            'check_bounds', 'fit_turbulence']
