@@ -40,15 +40,18 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from wind_shaper.app import Setup  # noqa: E402
+from wind_shaper.core.errors import ConfigError  # noqa: E402
 from wind_shaper.estimation import FieldEstimator  # noqa: E402
 from wind_shaper.sim import SimulatedTunnel  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from convergence import with_settings  # noqa: E402  (NAME=VALUE settings, as convergence.py takes them)
 
 HIDDEN = [{'name': 'weak_fan', 'fan': 'HM2', 'gain': 0.8}, {'name': 'swirl', 'gain': 0.5},
           {'name': 'merging_jets', 'strength': 0.5, 'exponent': 0.75, 'width': 0.08},
@@ -102,14 +105,11 @@ def _timed(fn, *args, **kw):
     return out, time.thread_time() - c
 
 
-def run_tunnel(setup: Setup, name: str, seeds, n_commands: int, n_samples: int,
-               settings: dict | None = None) -> dict:
-    """One tunnel's calibration; ``settings``: estimator settings over shaping.yaml's (every
-    estimator gets them)."""
+def run_tunnel(setup: Setup, name: str, seeds, n_commands: int, n_samples: int) -> dict:
     kp = setup.geometry.key_points
     on = setup.geometry.fans.enabled
     lo, hi = setup.shaping.u_min + 0.2, setup.shaping.u_max
-    ests = estimators(replace(setup.shaping.make_estimator(setup.load_model()), **(settings or {})))
+    ests = estimators(setup.shaping.make_estimator(setup.load_model()))
     z = {k: [] for k in ests}
     err = {k: [] for k in ests}
     cpu = {k: [] for k in [*ests, 'turbulent reuse']}
@@ -180,13 +180,14 @@ def main(argv=None):
                     help='an estimator setting over shaping.yaml\'s, e.g. long_run_span_s=2 (repeatable)')
     ap.add_argument('--json', default=None)
     args = ap.parse_args(argv)
-    settings = {}
-    for kv in args.estimator:
-        key, sep, value = kv.partition('=')
-        if not sep:
-            ap.error(f'--estimator takes NAME=VALUE; got {kv!r}')
-        settings[key] = json.loads(value) if value[:1] in '0123456789-[{tf' else value
-    setup = Setup.load()
+    bad = [kv for kv in args.estimator if '=' not in kv]
+    if bad:
+        ap.error(f'--estimator takes NAME=VALUE; got {bad[0]!r}')
+    setup = with_settings(Setup.load(), args.estimator)   # every estimator gets them
+    try:
+        setup.shaping.make_estimator()
+    except ConfigError as exc:
+        ap.error(str(exc))
     names = QUICK if args.quick else (args.tunnels.split(',') if args.tunnels else list(TUNNELS))
     unknown = [n for n in names if n not in TUNNELS]
     if unknown:
@@ -198,11 +199,11 @@ def main(argv=None):
     t0 = time.perf_counter()
     rows = {}
     for name in names:
-        rows[name] = run_tunnel(setup, name, seeds, n_commands, n_samples, settings)
+        rows[name] = run_tunnel(setup, name, seeds, n_commands, n_samples)
         t = rows[name]['turbulent']
         print(f"{name:32s} z RMS white {rows[name]['white']['z_rms']:.2f}, turbulent {t['z_rms']:.2f}; "
               f"out 2σ {100 * t['out_2sigma']:.1f} %", flush=True)
-    meta = {'seeds': len(seeds), 'commands': n_commands, 'samples': n_samples, 'estimator': settings,
+    meta = {'seeds': len(seeds), 'commands': n_commands, 'samples': n_samples, 'estimator': args.estimator,
             'key_points': len(setup.geometry.key_points), 'machine': f'{platform.machine()}, '
             f'{os.cpu_count()} cores', 'date': time.strftime('%Y-%m-%d'), 'seconds': 0.0,
             'command': 'python bench/field_std.py ' + ' '.join(argv if argv is not None else sys.argv[1:]),
