@@ -15,7 +15,7 @@ from bench_module import BENCH, load_bench  # noqa: E402
 QUICK = {
     'coverage': ['--effects', 'background_draft', '--sizes', '1', '--seeds', '1', '--clean', '1',
                  '--sweeps', '6', '--samples', '300', '--jobs', '1'],
-    'field_std': ['--quick', '--estimator', 'long_run_span_s=2'],
+    'field_std': ['--quick', '--estimator', 'long_run_span_s=0'],
     'scale': ['--quick'],
     'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
                     '--targets', 'uniform'],

@@ -424,7 +424,7 @@ class FieldEstimator:
     #: whitened residuals over lags up to this span [s], where above 1
     #: (``estimation.turbulent.long_run_scale``): gusts slower than the fitted gust time, which
     #: one sweep cannot tell from the field, then widen the std instead of hiding in it; 0: off
-    long_run_span_s: float = 0.0
+    long_run_span_s: float = 1.5
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
