@@ -64,6 +64,7 @@ _RANGES = {
     'commissioning_weight': (0, 10, "against one of the run's maps"),
     'commissioning_reach': (0, 1, 'a PWM fraction'),
     'pool_within': (0, 1, 'a PWM fraction'),
+    'curve_sd': (0, 1, "a share of the fan's thrust"),
 }
 
 
@@ -109,7 +110,10 @@ class AdaptiveUpdate:
     correction fitted to them, as the prior's mean; its sd as before), so a fan the run has not
     yet run, on which its maps say nothing, keeps what the commissioning showed instead of
     falling back to the prior's gain once the far maps have faded (off after a first sweep that
-    contradicted the prior, or once the run has relearned).
+    contradicted the prior, or once the run has relearned); curve_sd [-]: the prior sd of the
+    bumps by which each fan's gain varies with its own command in the per-fan fit
+    (``ShapeFit.curve_sd``: a stall dip or a dead band in one fan's curve; 0: none; dense priors
+    only, a large wall's fit keeps per-fan gains).
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -141,6 +145,7 @@ class AdaptiveUpdate:
     commissioning_weight: float = 1.0
     commissioning_reach: float = 0.15
     commissioning_anchor: bool = True
+    curve_sd: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -289,7 +294,8 @@ class AdaptiveUpdate:
         elif basis is not None:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
-                           gain_common_sd=self.gain_common_sd, load_sd=self.load_sd)
+                           gain_common_sd=self.gain_common_sd, load_sd=self.load_sd,
+                           curve_sd=self.curve_sd)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
@@ -323,6 +329,10 @@ class AdaptiveUpdate:
                     load, sa = fit.load(U, on), basis.shape @ a
                     val = val + slope * load * sa
                     jac = jac + slope * (load * (basis.shape * da) + np.outer(sa, dload))
+                if fit.curved:
+                    h, dh = fit.curve(theta, U, basis.n_fans)
+                    val = val + basis.shape @ (a * h)
+                    jac = jac + basis.shape * (da * h + a * dh)
                 return val, jac
             mode = 'shape' if fitted else 'prior'
         elif inp.model is not None and inp.key_points is not None:

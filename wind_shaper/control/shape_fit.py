@@ -24,6 +24,14 @@ from .basis import FanBasis
 BASES = ('gain', 'x', 'y', 'width')
 #: The mean command [fraction] at which the shared load slope leaves the gains as they are.
 LOAD_REF = 0.3
+#: Centres [PWM fraction] of the bumps of each fan's curve correction (``ShapeFit.curve_sd``),
+#: and their width: a stall dip or a dead band spans 0.1-0.3 of the command.
+CURVE_CENTRES = np.linspace(0.05, 0.95, 10)
+CURVE_WIDTH = 0.1
+#: each bump's mean over the command range 0..1, taken off it: a constant factor is the gain's
+#: to fit (the bumps alone would sum to one and trade it against the gain's prior)
+_CURVE_MEANS = np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, 201) - c) / CURVE_WIDTH) ** 2))
+                         for c in CURVE_CENTRES])
 
 
 @dataclass(frozen=True)
@@ -68,16 +76,45 @@ class ShapeFit:
     load_sd: float = 0.0
     #: the parameters' prior means (theta's layout); None: gain 1, everything else 0
     prior_mean: tuple | None = None
+    #: [-] with it > 0, each fan's gain also varies with its own command, gain_j + h_j(u), h_j
+    #: a sum of Gaussian bumps less their means over 0..1 (``CURVE_CENTRES``, ``CURVE_WIDTH``)
+    #: with weights of prior 0 +- curve_sd: what a per-fan gain cannot hold, a
+    #: stall dip or a dead band in one fan's curve, learned from the maps that ran it at
+    #: different commands. 0: none. Dense priors only.
+    curve_sd: float = 0.0
 
     @property
     def loaded(self) -> bool:
         return self.load_sd > 0
 
+    @property
+    def curved(self) -> bool:
+        return self.curve_sd > 0
+
+    @staticmethod
+    def bumps(U):
+        """phi (K, n) and dphi/dU (K, n): the curve correction's bumps at each fan's command."""
+        d = (np.asarray(U, float)[None, :] - CURVE_CENTRES[:, None]) / CURVE_WIDTH
+        phi = np.exp(-0.5 * d ** 2)
+        return phi - _CURVE_MEANS[:, None], -d / CURVE_WIDTH * phi
+
+    def curve(self, theta, U, n: int):
+        """h (n,) and dh/dU (n,): what each fan's curve correction adds to its gain at its
+        command U (the fan's footprint is scaled by gain_j + h_j(U_j))."""
+        if not self.curved:
+            return np.zeros(n), np.zeros(n)
+        start = 1 + len(self.bases) * n
+        c = np.asarray(theta[start:start + len(CURVE_CENTRES) * n], float).reshape(len(CURVE_CENTRES), n)
+        phi, dphi = self.bumps(U)
+        return np.sum(c * phi, axis=0), np.sum(c * dphi, axis=0)
+
     def prior(self, n: int):
+        K = len(CURVE_CENTRES) * n * self.curved
         mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
-                              + [[0.0]] * self.swirl + [[0.0]] * self.loaded)
+                              + [np.zeros(K)] + [[0.0]] * self.swirl + [[0.0]] * self.loaded)
         sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
         std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
+                             + [np.full(K, self.curve_sd)]
                              + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded)
         if self.prior_mean is not None:
             mean = np.asarray(self.prior_mean, dtype=float).copy()
@@ -118,8 +155,12 @@ class ShapeFit:
         mean, std = self.prior(n)
         P = len(mean)
         frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats)
+                                + [~np.asarray(enabled, bool)] * (len(CURVE_CENTRES) * self.curved)
                                 + [[False]] * (self.swirl + self.loaded))
         if basis.sparse:
+            if self.curved:
+                raise ConfigError('the curve correction (curve_sd) needs a dense prior; a large '
+                                  'wall\'s sparse fit has per-fan gains only: set curve_sd to 0')
             if self.loaded:
                 raise ConfigError('the load slope (load_sd) needs a dense prior; a large wall\'s '
                                   'sparse fit has per-fan gains only: set load_sd to 0')
@@ -146,12 +187,13 @@ class ShapeFit:
         if len(cache) > 64:
             cache.clear()
         for U, F, w in maps:
-            key = (self.bases, self.swirl, self.loaded, U.tobytes(), F.tobytes(), w.tobytes(),
-                   mean.tobytes())
+            key = (self.bases, self.swirl, self.loaded, self.curved, U.tobytes(), F.tobytes(),
+                   w.tobytes(), mean.tobytes())
             hit = cache.get(key)
             if hit is None:
                 a, _ = basis.thrust(U)
-                X = np.column_stack([np.ones(len(F))] + [B * a for B in mats]
+                curve = [basis.shape * (a * phi) for phi in self.bumps(U)[0]] if self.curved else []
+                X = np.column_stack([np.ones(len(F))] + [B * a for B in mats] + curve
                                     + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl
                                     + [self.load(U, enabled) * (basis.shape @ a)] * self.loaded)
                 Xw = X * w[:, None]

@@ -406,3 +406,53 @@ def test_a_map_farther_than_pool_within_is_not_averaged_in(rig, prior):
 def test_pool_within_outside_its_range_is_refused():
     with pytest.raises(ConfigError, match='pool_within'):
         AdaptiveUpdate(pool_within=-0.1)
+
+
+def test_shape_fit_learns_a_stall_dip_in_one_fans_curve(rig, prior, rng):
+    """A dip of 40 % around 35 % PWM in HM2's curve, which no gain can hold: with the curve
+    correction the fit over maps at scattered commands finds HM2's gain in the dip and out of
+    it (gain_j + h_j(u)), leaves the other fans' alone, and predicts a new map far better than
+    without."""
+    kp = rig.key_points
+    basis = FanBasis.from_term(prior, kp)
+
+    def dip(U):
+        return 1.0 - 0.4 * np.exp(-((U[3] - 0.35) / 0.08) ** 2)
+
+    def field(U):
+        a = basis.thrust(U)[0].copy()
+        a[3] *= dip(U)
+        return basis.offset + basis.shape @ a
+
+    maps = []
+    for _ in range(12):
+        U = rng.uniform(0.1, 0.8, 7)
+        maps.append((U, field(U) + 0.01 * rng.normal(size=len(kp)), np.ones(len(kp))))
+    curved, plain = ShapeFit(noise_std=0.01, curve_sd=0.3), ShapeFit(noise_std=0.01)
+    theta, flat = curved.fit(basis, maps, rig.fans.enabled), plain.fit(basis, maps, rig.fans.enabled)
+
+    def gain(u, fan=3):
+        U = np.full(7, 0.5)
+        U[fan] = u
+        return theta[1 + fan] + curved.curve(theta, U, 7)[0][fan]
+
+    assert gain(0.35) == pytest.approx(0.6, abs=0.05)
+    assert gain(0.3) == pytest.approx(0.73, abs=0.05)
+    assert gain(0.7) == pytest.approx(1.0, abs=0.05)
+    assert all(gain(u, fan=0) == pytest.approx(1.0, abs=0.05) for u in (0.2, 0.35, 0.6))
+
+    def predict(fit, th, U):
+        a = basis.thrust(U)[0]
+        h = fit.curve(th, U, 7)[0]
+        return fit.shape_matrix(basis, th) @ a + th[0] + basis.offset + basis.shape @ (a * h)
+
+    U = np.array([0.4, 0.3, 0.5, 0.33, 0.45, 0.3, 0.2])        # HM2 in its dip
+    err_curved = np.sqrt(np.mean((predict(curved, theta, U) - field(U)) ** 2))
+    err_plain = np.sqrt(np.mean((predict(plain, flat, U) - field(U)) ** 2))
+    assert err_curved < 0.5 * err_plain
+    assert curved.fit(basis, maps, rig.fans.enabled).shape == (len(flat) + 70,)
+
+
+def test_a_curve_sd_outside_its_range_is_refused():
+    with pytest.raises(ConfigError, match='curve_sd'):
+        AdaptiveUpdate(curve_sd=2.0)
