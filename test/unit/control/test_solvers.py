@@ -30,17 +30,17 @@ def _inputs(rig, prior, U, field, target, history=(), k=0, std=None, enabled=Non
 
 
 # -- bounds and disabled fans -------------------------------------------------------------------
-@pytest.mark.parametrize('mode', ['full', 'jacobian_only'])
+@pytest.mark.parametrize('mode', ['full', 'jacobian_only', 'curve'])
 def test_commands_stay_in_bounds_and_disabled_fans_stay_zero(rig, prior, rng, mode):
     bounds = CommandBounds(0.05, 0.6)
-    rule = AdaptiveUpdate(bounds=bounds)
+    rule = AdaptiveUpdate(bounds=bounds, curve_sd=0.15 if mode == 'curve' else 0.0)
     enabled = np.array([True, True, False, True, True, True, False])
     kp = rig.key_points
     for trial in range(25):
         U = np.where(enabled, rng.uniform(0.0, 0.8, 7), rng.uniform(0, 1, 7))  # even out-of-bounds input
         target = rng.uniform(-5, 15) + rng.normal(0, 2) * np.exp(-np.sum((kp - rng.uniform(-.2, .2, 2)) ** 2, 1) / 0.02)
         field = prior(np.clip(U, 0, 1) * enabled, kp) + rng.normal(0, 0.3, len(kp))
-        if mode == 'full':
+        if mode in ('full', 'curve'):
             history = [PastIteration(np.where(enabled, rng.uniform(0, .6, 7), 0), prior(rng.uniform(0, .6, 7) * enabled, kp),
                                      None, {'radius': rng.uniform(0.01, 0.65)}) for _ in range(trial % 4)]
             step = rule.step(_inputs(rig, prior, U, field, target, history, k=len(history), enabled=enabled))
