@@ -113,7 +113,8 @@ class AdaptiveUpdate:
     contradicted the prior, or once the run has relearned); curve_sd [-]: the prior sd of the
     bumps by which each fan's gain varies with its own command in the per-fan fit
     (``ShapeFit.curve_sd``: a stall dip or a dead band in one fan's curve; 0: none; dense priors
-    only, a large wall's fit keeps per-fan gains).
+    only, a large wall's fit keeps per-fan gains), used only while the commissioning's maps are
+    in the fit (``_curve_learnable``); ``info['curve']`` says whether it was.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -215,11 +216,22 @@ class AdaptiveUpdate:
         first = dict(history[0].info).get('warm_start') or {} if history else {}
         return relearn is None and fit_from == 0 and not (first.get('check') or {}).get('mismatch')
 
-    def _fit_weight(self, past, weight: float) -> np.ndarray | float:
+    def _curve_learnable(self, inp: UpdateInput, history, fit_from: int, relearn) -> bool:
+        """Whether the fit may bend each fan's curve (``curve_sd``): only while the commissioning's
+        maps, which run every fan across its command range, are in it. The run's own maps sit
+        close together, where a bend in one fan's curve and its gain look alike: fitted on them
+        alone (no commissioning maps, after a restart, once the run has relearned) the bumps
+        take up the model's misfit as false dips and hold the steps in a wrong basin."""
+        if self.curve_sd <= 0 or not inp.prior_maps or self.commissioning_weight <= 0:
+            return False
+        return not history or self._still_commissioned(history, fit_from, relearn)
+
+    def _fit_weight(self, past, weight: float) -> np.ndarray:
         """A commissioning map's weight per key point in the fit: ``weight`` (against one of the
-        run's maps) times noise_std^2 / (noise_std^2 + its std^2)."""
+        run's maps) times noise_std^2 / (noise_std^2 + its std^2) (its std 0 when not kept)."""
         n2 = self.noise_std ** 2
-        return weight * n2 / (n2 + (0.0 if past.std is None else np.asarray(past.std, float) ** 2))
+        std2 = 0.0 if past.std is None else np.asarray(past.std, float) ** 2
+        return np.broadcast_to(weight * n2 / (n2 + std2), np.shape(past.mean)).astype(float)
 
     def step(self, inp: UpdateInput) -> UpdateStep:
         return self._step(inp, relearn=None)
@@ -277,6 +289,7 @@ class AdaptiveUpdate:
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
         slope = 0.0   # the shared load slope of the gains (ShapeFit.load_sd), dense priors only
+        curved = False   # whether the fit bent the fans' curves (``_curve_learnable``)
         if basis is not None and basis.sparse:
             # A large wall: per-fan gains only, on the Gram matrix of the footprints (cached per
             # run); no secant and no swirl term; the step is a bounded QP in thrust space.
@@ -295,7 +308,7 @@ class AdaptiveUpdate:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
                            gain_common_sd=self.gain_common_sd, load_sd=self.load_sd,
-                           curve_sd=self.curve_sd)
+                           curve_sd=self.curve_sd if self._curve_learnable(inp, history, fit_from, relearn) else 0.0)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
@@ -314,6 +327,7 @@ class AdaptiveUpdate:
             Smat = fit.shape_matrix(basis, theta)
             g_swirl = fit.swirl_gain(theta)
             slope = fit.load_slope(theta)
+            curved = fit.curved
             dload = np.where(on, 1.0 / max(1, int(on.sum())), 0.0)   # dL/dU
 
             def model(U):
@@ -485,7 +499,7 @@ class AdaptiveUpdate:
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
-                'load_slope': float(slope),
+                'load_slope': float(slope), 'curve': bool(curved),
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}

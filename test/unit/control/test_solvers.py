@@ -23,10 +23,11 @@ def prior(rig):
     return FanJets(rig.fans, **JETS) + CentralRing(rig.fans, **RING)
 
 
-def _inputs(rig, prior, U, field, target, history=(), k=0, std=None, enabled=None):
+def _inputs(rig, prior, U, field, target, history=(), k=0, std=None, enabled=None, prior_maps=()):
     enabled = rig.fans.enabled if enabled is None else enabled
     return UpdateInput(k, U, target - field, None, enabled, std, model=prior,
-                       key_points=rig.key_points, target=target, history=tuple(history))
+                       key_points=rig.key_points, target=target, history=tuple(history),
+                       prior_maps=tuple(prior_maps))
 
 
 # -- bounds and disabled fans -------------------------------------------------------------------
@@ -36,6 +37,7 @@ def test_commands_stay_in_bounds_and_disabled_fans_stay_zero(rig, prior, rng, mo
     rule = AdaptiveUpdate(bounds=bounds, curve_sd=0.15 if mode == 'curve' else 0.0)
     enabled = np.array([True, True, False, True, True, True, False])
     kp = rig.key_points
+    bent = 0
     for trial in range(25):
         U = np.where(enabled, rng.uniform(0.0, 0.8, 7), rng.uniform(0, 1, 7))  # even out-of-bounds input
         target = rng.uniform(-5, 15) + rng.normal(0, 2) * np.exp(-np.sum((kp - rng.uniform(-.2, .2, 2)) ** 2, 1) / 0.02)
@@ -43,7 +45,12 @@ def test_commands_stay_in_bounds_and_disabled_fans_stay_zero(rig, prior, rng, mo
         if mode in ('full', 'curve'):
             history = [PastIteration(np.where(enabled, rng.uniform(0, .6, 7), 0), prior(rng.uniform(0, .6, 7) * enabled, kp),
                                      None, {'radius': rng.uniform(0.01, 0.65)}) for _ in range(trial % 4)]
-            step = rule.step(_inputs(rig, prior, U, field, target, history, k=len(history), enabled=enabled))
+            # the curve is bent only on commissioning maps across the command range
+            maps = [PastIteration(V, prior(V, kp) * rng.uniform(0.8, 1.2), None, {})
+                    for V in rng.uniform(0, 1, (4, 7))] if mode == 'curve' else []
+            step = rule.step(_inputs(rig, prior, U, field, target, history, k=len(history), enabled=enabled,
+                                     prior_maps=maps))
+            bent += bool(step.info['curve'])
         else:
             J = prior.jacobian(U, kp) * rng.uniform(0.01, 10)
             step = rule.step(UpdateInput(trial, U, target - field, J, enabled, None))
@@ -51,6 +58,7 @@ def test_commands_stay_in_bounds_and_disabled_fans_stay_zero(rig, prior, rng, mo
         assert np.all(np.isfinite(out))
         assert np.all(out[enabled] >= 0.05 - 1e-12) and np.all(out[enabled] <= 0.6 + 1e-12)
         assert np.all(out[~enabled] == 0.0)
+    assert (bent > 0) == (mode == 'curve')   # the curve mode did bend the curves
 
 
 def test_a_disabled_fan_takes_no_part_even_if_the_model_wants_it(rig, prior):
@@ -451,6 +459,26 @@ def test_shape_fit_learns_a_stall_dip_in_one_fans_curve(rig, prior, rng):
     err_plain = np.sqrt(np.mean((predict(plain, flat, U) - field(U)) ** 2))
     assert err_curved < 0.5 * err_plain
     assert curved.fit(basis, maps, rig.fans.enabled).shape == (len(flat) + 70,)
+
+
+def test_the_curve_is_bent_only_while_the_commissioning_maps_are_in_the_fit(rig, prior, rng):
+    """The run's own maps sit close together, where a bend in a fan's curve and its gain look
+    alike: without commissioning maps, or once the run has relearned, the fit keeps the gains."""
+    kp = rig.key_points
+    rule = AdaptiveUpdate(curve_sd=0.07)
+    target = prior(np.full(7, 0.4), kp)
+    U = np.full(7, 0.45)
+    maps = [PastIteration(V, prior(V, kp), None, {}) for V in rng.uniform(0, 1, (4, 7))]
+    history = [PastIteration(np.full(7, 0.5), prior(np.full(7, 0.5), kp), None, {'radius': 0.35})]
+    with_maps = rule.step(_inputs(rig, prior, U, prior(U, kp), target, history, k=1, prior_maps=maps))
+    assert with_maps.info['curve']
+    assert not rule.step(_inputs(rig, prior, U, prior(U, kp), target, history, k=1)).info['curve']
+    contradicted = [PastIteration(history[0].U, history[0].mean, None,
+                                  {'radius': 0.35, 'warm_start': {'check': {'mismatch': True}}})]
+    assert not rule.step(_inputs(rig, prior, U, prior(U, kp), target, contradicted, k=1,
+                                 prior_maps=maps)).info['curve']
+    assert not AdaptiveUpdate(curve_sd=0.0).step(
+        _inputs(rig, prior, U, prior(U, kp), target, history, k=1, prior_maps=maps)).info['curve']
 
 
 def test_a_curve_sd_outside_its_range_is_refused():
