@@ -9,6 +9,7 @@ numbers, long strings, control characters and binary, each spliced into a valid 
 """
 from __future__ import annotations
 
+import atexit
 import json
 import shutil
 import tempfile
@@ -140,10 +141,17 @@ def _base(name: str, make) -> object:
     return _BASE[name]
 
 
+def _scratch(prefix: str) -> Path:
+    """A temporary folder removed when the test process exits (the bases live that long)."""
+    root = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, root, ignore_errors=True)
+    return root
+
+
 def experiment_folder() -> Path:
     """A stored experiment (3 rows, one swept) to copy and damage."""
     def make():
-        root = Path(tempfile.mkdtemp(prefix='fuzz-exp-'))
+        root = _scratch('fuzz-exp-')
         s = setup()
         fans = list(s.geometry.fans.names)
         U = np.where(s.geometry.fans.enabled, 0.5, 0.0)
@@ -158,7 +166,7 @@ def experiment_folder() -> Path:
 def bag_folder() -> Path:
     def make():
         from wind_shaper.bag.sweeps import write_sweep_bag
-        root = Path(tempfile.mkdtemp(prefix='fuzz-bag-'))
+        root = _scratch('fuzz-bag-')
         sim = setup().make_sim(seed=0)
         sim.apply(np.where(setup().geometry.fans.enabled, 0.5, 0.0))
         return write_sweep_bag(root / 'bag', [sim.sweep(200), sim.sweep(200)],
