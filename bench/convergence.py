@@ -510,6 +510,9 @@ def summarise(runs: list[dict], zs: float) -> dict:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seeds', type=int, default=5)
+    ap.add_argument('--first-seed', type=int, default=0,
+                    help='the runs\' seeds are FIRST .. FIRST + seeds - 1 (other seeds of the same '
+                         'cases, e.g. for --self-check)')
     ap.add_argument('--iterations', type=int, default=12)
     ap.add_argument('--json', default=None, help='results file (default: bench/out/convergence.json, '
                                                   'or convergence_quick.json with --quick)')
@@ -540,6 +543,11 @@ def main(argv=None):
                     help='print the summary table of an earlier results file (the one in docs/benchmarks.md) and exit')
     ap.add_argument('--zeta-cache', default=None,
                     help='JSON file to read/write zeta* per case (skips the optimisation when present)')
+    ap.add_argument('--self-check', nargs=2, default=None, metavar=('A.json', 'B.json'),
+                    help="apply the shipped-against-flat test to one method against itself: its "
+                         "runs in B (other seeds, --first-seed) against those in A, case by case; "
+                         "run nothing")
+    ap.add_argument('--self-check-method', default='flat', help='the method --self-check compares')
     args = ap.parse_args(argv)
     parts = args.calibration.split(':')
     if not (args.calibration == 'held' or (parts[0] == 'sweeps' and 2 <= len(parts) <= 3
@@ -549,6 +557,10 @@ def main(argv=None):
     PRIOR_MAPS['use'] = not args.no_prior_maps
     if args.summary_from:
         print_summary(json.loads(Path(args.summary_from).read_text())['cases'])
+        return
+    if args.self_check:
+        a, b = (json.loads(Path(p).read_text())['cases'] for p in args.self_check)
+        print_self_check(a, b, args.self_check_method)
         return
     if args.json is None:
         stem = 'convergence' if args.source == 'plate' else f'convergence_{args.source}'
@@ -591,7 +603,7 @@ def main(argv=None):
                        'model_error_N': plant.model_error, 'methods': {}}
                 for name, cfg in methods.items():
                     runs = [run_method(plant, tv, cfg, seed, args.iterations, args.source)
-                            for seed in range(seeds)]
+                            for seed in range(args.first_seed, args.first_seed + seeds)]
                     row['methods'][name] = summarise(runs, zs)
                 rows.append(row)
                 print_row(row)
@@ -602,7 +614,7 @@ def main(argv=None):
     print_warm_checks(rows)
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    meta = {'seeds': seeds, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
+    meta = {'seeds': seeds, 'first_seed': args.first_seed, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
             'calibration': args.calibration, 'prior_maps': not args.no_prior_maps, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))
@@ -733,6 +745,46 @@ def behind_flat(shipped, flat, zs: float = float('nan')) -> dict:
             'seeds': n, 'self_gap': gap,
             'beyond_noise': None if np.isnan(gap) else bool(worst > BEHIND and worst > gap),
             'gap_N2': gap_n2, 'gap_sweeps': gap_n2 / sweep_sd if sweep_sd > 0 else float('nan')}
+
+
+def self_check(rows_a, rows_b, method: str = 'flat') -> dict:
+    """The first half of the shipped-against-flat test (never more than 2 % behind at any k >=
+    2, ``behind_flat``) applied to ``method`` against itself: its runs in ``rows_b`` (the
+    candidate) against those in ``rows_a`` (the reference) on other seeds, for the cases both
+    hold. It counts what the test says of two runs that differ in their seeds alone: how often
+    it fails a method as good as its reference. (The second half, within 5 % by k = 2 where the
+    reference is by k = 4, asks the candidate to be faster, so a method cannot meet it against
+    itself.) Returns {'cases', 'behind', 'rows': [(case, worst, k)]}."""
+    ref = {row['case']: row['methods'][method] for row in rows_a if method in row['methods']}
+    out = {'cases': 0, 'behind': 0, 'rows': []}
+    for row in rows_b:
+        m, f = row['methods'].get(method), ref.get(row['case'])
+        if m is None or f is None:
+            continue
+        b = behind_flat(m, f)
+        out['cases'] += 1
+        out['behind'] += bool(b['worst'] > BEHIND)
+        out['rows'].append((row['case'], b['worst'], b['k']))
+    return out
+
+
+def print_self_check(rows_a, rows_b, method: str = 'flat'):
+    """``self_check`` as a table and a count, both ways round (B against A, A against B)."""
+    forth, back = self_check(rows_a, rows_b, method), self_check(rows_b, rows_a, method)
+    print(f'\nNever more than {100 * (BEHIND - 1):.0f} % behind at any k >= 2, applied to {method} '
+          f'against itself on other seeds (B: the candidate, A: the reference; medians over each '
+          f'file\'s seeds)\n')
+    print('| case | worst B/A, k >= 2 | worst A/B, k >= 2 |')
+    print('|---|---|---|')
+    back_rows = {case: (w, k) for case, w, k in back['rows']}
+    for case, w, k in forth['rows']:
+        wb, kb = back_rows[case]
+        print(f"| {case} | {w:.3f} at k={k}{' MISSED' if w > BEHIND else ''} | "
+              f"{wb:.3f} at k={kb}{' MISSED' if wb > BEHIND else ''} |")
+    either = sum(max(w, back_rows[case][0]) > BEHIND for case, w, _ in forth['rows'])
+    print(f"\nOf {forth['cases']} cases: B behind A in {forth['behind']}, A behind B in "
+          f"{back['behind']}, one behind the other in {either}")
+    return forth, back
 
 
 def print_warm_checks(rows):

@@ -131,7 +131,7 @@ def draw_tunnels(count: int, seed: int, n_effects: int) -> list[dict]:
 def benchmark_tunnel(job) -> list[dict]:
     """One tunnel's rows: (tunnel, targets, methods, seeds, iterations, quick) -> a row per
     target, as bench/convergence.py makes them (the prior commissioned on the tunnel first)."""
-    tunnel, targets, methods, seeds, iterations, quick = job
+    tunnel, targets, methods, seeds, iterations, quick, first_seed = job
     convergence.OWN_TUNNELS.clear()
     convergence.OWN_TUNNELS[tunnel['name']] = (tunnel['effects'], targets)
     rows = []
@@ -145,7 +145,8 @@ def benchmark_tunnel(job) -> list[dict]:
                    'effects': tunnel['effects'], 'zeta_star_N2': zs,
                    'model_error_N': plant.model_error, 'methods': {}}
             for name, cfg in methods.items():
-                runs = [convergence.run_method(plant, tv, cfg, s, iterations) for s in range(seeds)]
+                runs = [convergence.run_method(plant, tv, cfg, s, iterations)
+                        for s in range(first_seed, first_seed + seeds)]
                 row['methods'][name] = convergence.summarise(runs, zs)
             rows.append(row)
             convergence.print_row(row)
@@ -169,6 +170,9 @@ def main(argv=None):
     ap.add_argument('--seeds', type=int, default=5,
                     help='runs per method and case (from 4 on, each verdict also weighs the gap '
                          'against the flat start\'s own gap between its two halves of seeds)')
+    ap.add_argument('--first-seed', type=int, default=0,
+                    help="the runs' seeds are FIRST .. FIRST + seeds - 1 (for "
+                         "`convergence.py --self-check`)")
     ap.add_argument('--iterations', type=int, default=12)
     ap.add_argument('--targets', default=','.join(convergence.DEFAULT_OWN_TARGETS))
     ap.add_argument('--methods', default=f'{convergence.SHIPPED},flat')
@@ -221,7 +225,8 @@ def main(argv=None):
         (files / f'tunnel_{args.seed}_{i}.yaml').write_text(
             yaml.safe_dump({**tunnel, 'targets': targets}, sort_keys=False))
     t0 = time.perf_counter()
-    jobs = [(tunnel, targets, methods, args.seeds, args.iterations, args.quick) for tunnel in tunnels]
+    jobs = [(tunnel, targets, methods, args.seeds, args.iterations, args.quick, args.first_seed)
+            for tunnel in tunnels]
     if args.jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -231,7 +236,7 @@ def main(argv=None):
     rows = [row for tunnel_rows in done for row in tunnel_rows]
     print_results(rows)
     print(f'\n({time.perf_counter() - t0:.0f} s)')
-    meta = {'count': args.count, 'seed': args.seed, 'effects': args.effects, 'seeds': args.seeds,
+    meta = {'count': args.count, 'seed': args.seed, 'effects': args.effects, 'seeds': args.seeds, 'first_seed': args.first_seed,
             'iterations': args.iterations, 'targets': targets, 'methods': methods,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))

@@ -159,3 +159,24 @@ def test_a_tunnel_file_with_a_mistake_is_refused_with_what_was_wrong(text, says,
     bad.write_text(text)
     with pytest.raises(SystemExit, match=says.replace('[', r'\[').replace(']', r'\]')):
         conv.load_tunnel_file(bad)
+
+
+def test_the_self_check_counts_a_method_behind_itself_only_where_its_seeds_differ(capsys):
+    """--self-check applies the never-2-%-behind test to one method on two sets of seeds: the
+    same runs are never behind; runs 5 % worse at k = 3 on every seed are, one way round."""
+    conv = _load('convergence')
+    rng = np.random.default_rng(2)
+    R = 1.0 + 0.1 * np.exp(-np.arange(6))[None, :] + 0.001 * rng.random((10, 6))
+    worse = R * np.where(np.arange(6) == 3, 1.05, 1.0)
+
+    def rows(per_seed, case='tunnel, uniform'):
+        return [{'case': case, 'methods': {'flat': {'median_ratio': np.median(per_seed, 0).tolist(),
+                                                     'ratio_per_seed': per_seed.tolist()}}}]
+    same = conv.self_check(rows(R), rows(R))
+    assert same['cases'] == 1 and same['behind'] == 0
+    behind = conv.self_check(rows(R), rows(worse))
+    assert behind['behind'] == 1 and behind['rows'][0][2] == 3
+    assert conv.self_check(rows(worse), rows(R))['behind'] == 0
+    assert conv.self_check(rows(R), rows(worse, 'another, uniform'))['cases'] == 0   # no case in common
+    conv.print_self_check(rows(R), rows(worse))
+    assert 'B behind A in 1, A behind B in 0, one behind the other in 1' in capsys.readouterr().out
