@@ -502,9 +502,13 @@ def test_set_model_swaps_the_prior_and_refuses_a_broken_one(graph, setup, tmp_pa
         assert 'sigma=0.2' in repr(node._run.model)  # the good one stays
     r = graph.call(graph.set_model, SetModel.Request(path=str(setup.model_path)))
     assert r.success and repr(node._run.model) == old
-    # the prior set at run time is kept with the run and used again after a restart
+    # the prior set at run time is kept with the run and used again after a restart; restarted
+    # with another target, the run keeps its own and says so: a warning beside the information
+    # on the prior, both logged at start (rclpy refuses two severities from one logging line)
     graph.stop_coordinator()
-    assert repr(graph.start_coordinator()._run.model) == old
+    node = graph.start_coordinator(target='uniform:3.0')
+    assert repr(node._run.model) == old
+    assert {level for level, _ in node._run.notes} == {'info', 'warning'}
 
 
 def test_a_restart_resumes_at_the_next_iteration_with_the_same_commands(graph):
@@ -597,6 +601,12 @@ def test_iteration_timeout_from_the_request(graph):
     r = graph.iterate(timeout_s=1.0)
     assert not r.success and 'timed out while sweeping' in r.message, r.message
     assert time.monotonic() - t0 < 3.0
+    # a failed iteration (a warning) and then a cancelled one (information): both answered
+    running = graph.call_async(graph.run, RunIteration.Request())
+    assert wait_until(lambda: graph.status().state == IterationStatus.STATE_SWEEPING)
+    assert graph.call(graph.cancel, Trigger.Request()).success
+    assert wait_until(running.done, timeout=3.0), 'the cancelled iteration did not answer'
+    assert not running.result().success and 'cancelled' in running.result().message
 
 
 @pytest.mark.slow

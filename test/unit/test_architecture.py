@@ -1,6 +1,7 @@
 """The package's layers, read from its own imports: no circle, nothing imports upward, the pure
 layers never import ROS, and nothing uses the old ``wind_shaper.core.*`` paths."""
 import ast
+import re
 import warnings
 from pathlib import Path
 
@@ -151,3 +152,19 @@ def test_a_plugin_written_against_the_old_api_still_defines_a_term():
     from wind_shaper.model import FanGain as new_fan_gain
     assert FanGain is new_fan_gain and issubclass(Wrapper, Term)
     assert callable(register_term) and Hyper is not None
+
+
+#: a logging call whose severity a condition picks on one line: ``(log.warning if c else log.info)(m)``
+_SEVERITY_BY_CONDITION = re.compile(r'\(\s*[\w.()]*\.(?:debug|info|warning|warn|error|fatal)\s+if\b')
+
+
+def test_no_logging_line_picks_its_severity_by_a_condition():
+    """rclpy keys each logging call by its line and raises when one line logs at a second
+    severity: a node that logged a note as information and later one as a warning from the
+    same line crashed (at start, or in a service's answer). ``ros.log.log_note`` gives each
+    severity its own line."""
+    found = [f'{path.relative_to(PACKAGE_DIR.parent)}:{n}'
+             for path in sorted(PACKAGE_DIR.rglob('*.py'))
+             for n, line in enumerate(path.read_text().splitlines(), 1)
+             if _SEVERITY_BY_CONDITION.search(line)]
+    assert not found, f'use wind_shaper.ros.log.log_note instead: {found}'

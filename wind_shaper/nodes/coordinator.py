@@ -48,6 +48,7 @@ from ..core.limits import Limits
 from ..ros import diagnostics as diag
 from ..ros import names, qos
 from ..ros.convert import fan_command, pwm_from_command
+from ..ros.log import log_note
 from ..ros.params import declare_parameters, param
 from ..ros.runner import run
 from ..ros.waiting import Waits, in_thread
@@ -127,7 +128,7 @@ class CoordinatorNode(Node):
         self._run = run_ = ShapingRun.open(self.setup, run_root, p.run_name, p.target,
                                            {'coordinator': asdict(p)})
         for level, note in run_.notes:
-            (self.get_logger().warning if level == 'warning' else self.get_logger().info)(note)
+            log_note(self.get_logger(), level == 'warning', note)
         self.fan_names = run_.fan_names
         self.lock = threading.Lock()
         self.book = CoordinatorState(run_, p.sweep_duration_s)

@@ -23,6 +23,7 @@ from ..coordination import IterationStopped
 from ..coordination.hold_point import PointRecorder, check_point, hold_point
 from ..core.errors import WindShaperError
 from ..ros import names
+from ..ros.log import log_note
 
 #: No answer leaves sooner than this after its request came [s]. Fast DDS drops a reply when
 #: the server has not yet discovered the caller's reply reader (it waits 100 ms for it), and a
@@ -124,7 +125,7 @@ class HoldService:
             self.active = False
             node.hold(np.zeros(len(node.fan_names)))   # off between points, and after the last
             node.end_procedure()
-        (node.get_logger().info if response.success else node.get_logger().warning)(response.message)
+        log_note(node.get_logger(), not response.success, response.message)
         return response
 
 

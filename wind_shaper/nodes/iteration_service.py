@@ -16,6 +16,7 @@ from wind_shaper_msgs.srv import RunIteration
 from ..coordination import IterationStopped, run_iteration
 from ..coordination.requests import check_target_request, why
 from ..ros import names
+from ..ros.log import log_note
 from ..ros.waiting import in_thread
 
 
@@ -106,7 +107,7 @@ class IterationService:
         response.pwm_after = [float(u) for u in run_.U]
         if run_.command is not None:
             node.publish_command()
-        (node.get_logger().warning if node.book.last_failed else node.get_logger().info)(message)
+        log_note(node.get_logger(), node.book.last_failed, message)
         node.set_state(state, message)
         return response
 
