@@ -143,7 +143,7 @@ def run_held(setup, args) -> int:
     save_fit(out, fit, source=f'held-plate batch {batch.folder} ({len(data.forces)} points)')
     print(f'fitted {fit.model!r} on {len(data.forces)} held points; RMSE {fit.rmse:.4f} N')
     for name, value, std in zip(fit.names, fit.theta, fit.theta_std):
-        print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
+        print(f'  {fit.model.display_name(name):<32} {value:10.4f} +- {std:.4f}')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
     return 0
 

@@ -152,7 +152,7 @@ def _report_calibration(cal, out, setup) -> int:
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
           f'({", ".join(cal.held_out)}) of a fit on the others')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
-        print(f'  {name:<28} {value:10.4f} +- {std:.4f}')
+        print(f'  {cal.model.display_name(name):<32} {value:10.4f} +- {std:.4f}')
     print(f'{kept} of the sweeps kept as field maps for every run\'s update, its first step and '
           f'later steps near them (the sweeps with fans running that cover the key points)')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')

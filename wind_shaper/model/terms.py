@@ -128,6 +128,11 @@ class Term:
             names += [h.name] if h.size == 1 else [f'{h.name}[{i}]' for i in range(h.size)]
         return names
 
+    def display_name(self, name: str) -> str:
+        """A parameter's name for people: the term it belongs to, then its own name
+        ('k1__thrust_higher[1]' of ``FanJets + CentralRing`` -> 'FanJets.thrust_higher[1]')."""
+        return f'{type(self).__name__}.{name}'
+
     @property
     def bounds(self) -> np.ndarray:
         """(n_theta, 2) lower and upper bound of each free parameter."""
@@ -217,6 +222,12 @@ class _Composite(Term):
     @property
     def bounds(self):
         return np.vstack([self.k1.bounds, self.k2.bounds])
+
+    def display_name(self, name: str) -> str:
+        for prefix, child in (('k1__', self.k1), ('k2__', self.k2)):
+            if name.startswith(prefix):
+                return child.display_name(name[len(prefix):])
+        return super().display_name(name)
 
     @property
     def fixed_names(self):

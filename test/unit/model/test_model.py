@@ -121,3 +121,14 @@ def test_works_for_any_number_of_fans():
     U = np.full(20, 0.4)
     np.testing.assert_allclose(term.jacobian(U, pts), finite_difference_jacobian(term, U, pts),
                                rtol=1e-5, atol=1e-7)
+
+
+def test_a_parameter_is_named_for_people_by_its_term(rig):
+    """Printed parameters name the term they belong to, however deep the composition."""
+    term = paper_prior(rig.fans)
+    shown = [term.display_name(n) for n in term.theta_names]
+    assert 'FanJets.thrust_higher[1]' in shown and 'CentralRing.offset' in shown
+    assert not any('__' in s for s in shown)
+    nested = Sum(term, FanJets(rig.fans))
+    assert nested.display_name('k1__k2__sigma') == 'CentralRing.sigma'
+    assert nested.display_name('k2__sigma') == 'FanJets.sigma'
