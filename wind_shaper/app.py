@@ -127,12 +127,15 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
 
 def shaping_loop_on_sim(setup: Setup, target_spec, *, seed: int = 0, model: Term | None = None,
                         u0=None, rule_overrides: dict | None = None, sim=None,
-                        on_progress=None) -> tuple[ShapingLoop, Target]:
+                        on_progress=None, model_path=None) -> tuple[ShapingLoop, Target]:
     """The shaping loop of ``shape_on_sim``, not yet run. The prior's calibration error (for the
-    warm start's check) is read from the model file when ``model`` is the setup's own."""
+    warm start's check) and its commissioning maps are read from its model file: the setup's
+    own when ``model`` is None, ``model_path`` when ``model`` came from that file, none for a
+    ``model`` without a file."""
     sim = sim or setup.make_sim(seed=seed)
-    error = float('nan') if model is not None else setup.model_error()
-    maps = () if model is not None else setup.prior_maps()[0]
+    from_file = model is None or model_path is not None
+    error = setup.model_error(model_path) if from_file else float('nan')
+    maps = setup.prior_maps(model_path)[0] if from_file else ()
     model = model or setup.load_model()
     target = setup.make_target(target_spec, model=model)
     kp = setup.geometry.key_points

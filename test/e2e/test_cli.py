@@ -155,6 +155,8 @@ def test_shape_loads_a_model_naming_a_term_of_your_own(tmp_path, capsys, monkeyp
     assert main(['shape', '--sim', '--target', 'uniform', '--iterations', '1', '--model', str(model),
                  '--out', str(tmp_path / 'r2')]) == 0
     assert 'Updraft' in json.loads((tmp_path / 'r2' / 'run.json').read_text())['model']
+    # the warm start's check reads the prior's error from the file given, as from the config's own
+    assert 'not judged' not in capsys.readouterr().out
 
 
 def test_help_names_the_default_update_rule(capsys):

@@ -68,6 +68,12 @@ def test_fit_and_compare_write_their_reports(tmp_path, capsys):
     assert 'held-out model error' in capsys.readouterr().out
 
 
+def test_a_fit_with_nothing_held_out_says_so(tmp_path, capsys):
+    assert main(['model', 'fit', '--sim', '--sweeps', '1', '--samples', '300', '--out', str(tmp_path / 'fit')]) == 0
+    printed = capsys.readouterr().out
+    assert 'nothing held out: 1 sweep (3 or more' in printed and 'collect --design lhs:6' in printed
+
+
 @pytest.mark.parametrize('argv,message', [
     (['model', 'diagnose'], '--sim'),
     (['model', 'diagnose', '--sim', '--hidden', 'warp_drive'], 'warp_drive'),

@@ -649,7 +649,9 @@ def test_cli_set_model_swaps_the_prior_and_keeps_it_on_a_bad_file(graph, capsys,
     model = setup.load_model()
     path = save_model(tmp_path / 'wider.yaml', model.k1.clone(sigma=0.2) + model.k2)
     assert cli(['set-model', str(path)]) == 0
-    assert 'now uses' in capsys.readouterr().out and 'sigma=0.2' in repr(node._run.model)
+    printed = capsys.readouterr().out
+    assert 'now uses' in printed and 'sigma=0.2' in repr(node._run.model)
+    assert f'prior set from {path} (sent as text)' in printed
     broken = tmp_path / 'broken.yaml'
     broken.write_text('wind_shaper_model: 1\nmodel: {kind: nope}\n')
     assert cli(['set-model', str(broken)]) == 1

@@ -220,7 +220,7 @@ def register(subparsers) -> None:
         'collect', help='run a designed experiment on the node graph: sweeps at given commands, '
                         'stored and recorded for `model ... --data` and `calibrate --data`',
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=__doc__.split('\n\n')[0] + '.',
+        description=__doc__.split('\n\n')[0].rstrip('.') + '.',
         epilog=f'On a full ROS 2 install the call is:\n  {ROS2_EQUIVALENT}')
     p.add_argument('--design', required=True, metavar='SPEC',
                    help='lhs:N (N sweeps, fans off first and last, a Latin hypercube between) | '

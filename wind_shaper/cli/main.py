@@ -1,4 +1,7 @@
-"""`wind-shaper` command line: a thin argument layer over ``wind_shaper.app``."""
+"""`wind-shaper` command line: shape a multi-fan wind tunnel's airflow to a target profile,
+commission its prior and study its model (each command's own --help says more).
+
+The commands are a thin argument layer over ``wind_shaper.app``."""
 from __future__ import annotations
 
 import argparse
@@ -48,11 +51,10 @@ def _cmd_shape(args) -> int:
     from .model import _u0
     u0 = _u0(args.u0)
     loop, target = shaping_loop_on_sim(setup, args.target, seed=args.seed, model=model, sim=sim,
-                                       u0=u0, rule_overrides=rule or None)
-    if args.model:   # the model file's commissioning maps, as for the setup's own
-        loop.prior_maps, note = setup.prior_maps(args.model)
-        if note:
-            print(f'note: {note}')
+                                       u0=u0, rule_overrides=rule or None, model_path=args.model)
+    note = setup.prior_maps(args.model)[1] if args.model else ''
+    if note:   # the model file's maps were made at other key points
+        print(f'note: {note}')
     if loop.warm is not None:
         print(loop.warm.text())
         for note in loop.warm.notes:
@@ -78,9 +80,10 @@ def _cmd_shape(args) -> int:
     first, last = records[0], records[-1]
     if first.true_error is not None:
         print(f'true-field RMSE {np.sqrt(first.true_error):.3f} N -> {np.sqrt(last.true_error):.3f} N '
-              f'after {last.k} iterations')
+              f'after {last.k} iteration{"" if last.k == 1 else "s"}')
     print(f'tunnel time: {time_used["plate_total_s"]:.0f} s of sweeping + '
-          f'{time_used["settle_total_s"]:.0f} s of fan settling over {len(records)} sweeps')
+          f'{time_used["settle_total_s"]:.0f} s of fan settling over {len(records)} '
+          f'sweep{"" if len(records) == 1 else "s"}')
     print(f'report: {out}/ (run.json, field_maps.png, error.png, pwm.png)')
     return 0
 
@@ -178,7 +181,7 @@ def _cmd_targets_template(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='wind-shaper', description=__doc__.split('\n')[0])
+    parser = argparse.ArgumentParser(prog='wind-shaper', description=__doc__.split('\n\n')[0].replace('\n', ' '))
     parser.add_argument('--namespace', default=None, metavar='NS',
                         help='the ROS namespace of the node graph (default: $WIND_SHAPER_NAMESPACE, '
                              'else /): `up` starts its nodes in it and every other command talks '
@@ -235,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser('targets', help='target profiles: write a CSV template to edit by hand')
-    targets = p.add_subparsers(dest='targets_command', required=True)
+    targets = p.add_subparsers(dest='targets_command', required=True, metavar='{template}')
     p = targets.add_parser('template', help='write x,y,force for every key point of the tunnel '
                                             '(forces from --start), for --target csv:FILE')
     _common(p)

@@ -43,8 +43,9 @@ def _data(setup, args):
     from ..workbench.commands import simulated_sweeps
     from ..workbench.data import load_sweeps
     if args.sim == bool(args.data):
-        raise WindShaperError('give the sweeps: --sim (the simulated tunnel) or --data PATH (a bag, a '
-                              'run folder or a shape report), not both')
+        raise WindShaperError('give one source of sweeps: --sim (the simulated tunnel) or --data PATH '
+                              '(a bag, a run folder or a shape report)'
+                              + (', not both' if args.sim else ''))
     if args.sim:
         data = simulated_sweeps(_sim(setup, args), args.sweeps, seed=args.seed, n_samples=args.samples)
     else:
@@ -103,6 +104,12 @@ def _cmd_fit(args) -> int:
     held = res.heldout
     print(f'fitted {path} on {data.source}: training RMSE {res.fit.rmse:.3f} N'
           + (f', held-out model error {held["model_rmse"]:.3f} N (noise {held["noise_sd"]:.3f} N)' if held else ''))
+    if not held:
+        n = len(data)
+        print(f'nothing held out: {n} sweep{"" if n == 1 else "s"} (3 or more are needed to keep '
+              f'some out), so the fit is not judged on sweeps it did not see, and on sweeps at so few '
+              f'commands its parameters and their errors mean little; record more at varied commands '
+              f'(`wind-shaper collect --design lhs:6 --out NAME`) and fit on all of them')
     print(f'report: {out}/ (report.html, report.md, summary.json)')
     return 0
 
@@ -114,7 +121,8 @@ def _commission(setup, args, out) -> int:
     if args.sim == bool(args.data):
         raise WindShaperError('--commission fits the reference on --data RUN_OR_BAG (sweeps at varied '
                               'commands, e.g. from `wind-shaper collect --design lhs:12 --out NAME`) '
-                              'or on the held-plate batch of the simulated tunnel (--sim), not both')
+                              'or on the held-plate batch of the simulated tunnel (--sim)'
+                              + (', not both' if args.sim else ''))
     if args.sim:
         ref = commission_on(_sim(setup, args))
         source = f'commissioning batch on the simulated tunnel (seed {args.seed})'
@@ -316,7 +324,7 @@ def register(subparsers) -> None:
         'model', help='the model workbench: fit, compare, diagnose, add effects',
         description='Compare the model with sweeps, see where it fails, find the physical effect it '
                     'misses, add it and watch the error fall (docs/workbench.md).')
-    sub = model.add_subparsers(dest='model_command', required=True)
+    sub = model.add_subparsers(dest='model_command', required=True, metavar='{fit,compare,diagnose,add}')
 
     p = sub.add_parser('fit', help='fit the model to sweeps with uncertainties; scores, held-out error, '
                                    'residual maps')

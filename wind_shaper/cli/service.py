@@ -148,7 +148,8 @@ def format_result(r) -> str:
 
 def format_status(s) -> str:
     rmse = 'none yet' if math.isnan(s.rmse) else f'{s.rmse:.4f} N'
-    lines = [f'coordinator: {s.state}, iteration {s.iteration} ({100 * s.progress:.0f}%)',
+    where = f'iteration {s.iteration}' if s.iteration >= 0 else 'no iteration yet'
+    lines = [f'coordinator: {s.state}, {where} ({100 * s.progress:.0f}%)',
              f'target: {s.target}', f'last RMSE: {rmse}',
              f'commands [%]: {_pwm_text(s.fan_names, s.pwm)}', f'run folder: {s.run_folder}']
     if s.samples:
@@ -310,8 +311,8 @@ def _cmd_set_model(args) -> int:
         client = session.node.create_client(SetModel, names.SET_MODEL)
         if not session.wait_for_service(client, args.wait):
             return _not_running(names.SET_MODEL, args.wait)
-        # the text, not the path: the coordinator may run on another machine
-        answer = session.call(client, SetModel.Request(model_yaml=text), args.wait)
+        # the text, not the path: the coordinator may run on another machine (the path names it)
+        answer = session.call(client, SetModel.Request(model_yaml=text, path=str(args.model)), args.wait)
         if answer is None:
             print(f'the coordinator did not answer within {args.wait:g} s', file=sys.stderr)
             return 2

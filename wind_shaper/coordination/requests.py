@@ -60,9 +60,10 @@ def check_hold_request(limits: Limits, fan_names: Sequence[str], pwm: Sequence[f
 
 def read_model(run, limits: Limits, text: str, path: str):
     """(text, source, model) of a set_model request for ``run`` (a ``ShapingRun``): the
-    ``text`` when it has any, else the file at ``path`` (at most limits.yaml_bytes). Reads a
-    file and builds a model: a node runs it off its executor. ConfigError says what is wrong."""
-    source = 'the model_yaml text'
+    ``text`` when it has any (named by ``path`` when that is given too: the file the text came
+    from), else the file at ``path`` (at most limits.yaml_bytes). Reads a file and builds a
+    model: a node runs it off its executor. ConfigError says what is wrong."""
+    source = f'{path} (sent as text)' if path else 'the model_yaml text'
     if not text.strip():
         if not path:
             raise ConfigError('give a model file as model_yaml text or as a path')

@@ -94,12 +94,12 @@ class CoordinatorState:
         recorded; ``cancel_service`` is the resolved name of the cancel service."""
         if not self.running:
             return ''
+        wait = f'wait for it or cancel it (`wind-shaper cancel`, or call {cancel_service})'
         if experiment:
-            return f'an experiment is running ({experiment}): wait for it or call {cancel_service}'
+            return f'an experiment is running ({experiment}): {wait}'
         if holding:
-            return f'a held-plate point is being recorded: wait for it or call {cancel_service}'
-        return (f'an iteration is running (k={self.run.k}, {self.state}): wait for it or call '
-                f'{cancel_service}')
+            return f'a held-plate point is being recorded: {wait}'
+        return f'an iteration is running (k={self.run.k}, {self.state}): {wait}'
 
     def cancel_text(self, experiment: str = '') -> str:
         """What a cancel request is told while a procedure runs (``experiment``: the running

@@ -51,14 +51,16 @@ def load_model(path, fans: FanArray) -> Term:
 
 def model_error(path) -> float:
     """The prior's error per key point [N] as its calibration measured it: the held-out RMSE
-    (``heldout_rmse_N``), else the fit's own (``rmse_N``); NaN when the file says neither."""
+    (``heldout_rmse_N``, `calibrate`), else the held-out model error with the measurement noise
+    taken out (``heldout_model_rmse_N``, `model add`), else the fit's own (``rmse_N``); NaN when
+    the file says none of them."""
     try:
         doc = read_yaml_file(path)
     except (OSError, yaml.YAMLError):
         return float('nan')
     if not isinstance(doc, dict):
         return float('nan')
-    for key in ('heldout_rmse_N', 'rmse_N'):
+    for key in ('heldout_rmse_N', 'heldout_model_rmse_N', 'rmse_N'):
         value = doc.get(key)
         if isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0:
             return float(value)

@@ -54,6 +54,12 @@ from ..ros.waiting import in_thread
 
 
 @dataclass(frozen=True)
+
+def _sweep_label(k: int) -> str:
+    """How a log line names the sweep of request index ``k`` (-1: a held point or another
+    measurement that belongs to no iteration)."""
+    return f'iteration {k}' if k >= 0 else 'a measurement outside the iterations'
+
 class FieldEstimatorParams:
     config_dir: str = param('', "folder holding tunnel.yaml and shaping.yaml ('' = the shipped "
                             'config, or $WIND_SHAPER_CONFIG)')
@@ -260,7 +266,7 @@ class FieldEstimatorNode(Node):
         except WindShaperError as exc:
             with self._lock:
                 self._collecting = was_collecting  # a failed estimate changes nothing
-            message = (f'no field estimate for iteration {request.iteration} from {len(force_t)} '
+            message = (f'no field estimate for {_sweep_label(request.iteration)} from {len(force_t)} '
                        f'force and {len(pose_t)} pose samples: {exc}')
             self._last, self._last_ok = message, False
             self.get_logger().warning(message)
@@ -284,7 +290,7 @@ class FieldEstimatorNode(Node):
         if duration > 0:
             rates = (f' (force {len(force_t) / duration:.0f} Hz, pose {len(pose_t) / duration:.0f} Hz '
                      f'over {duration:.1f} s)')
-        message = (f'iteration {request.iteration}: {len(sweep)} pairs{rates}, GP on {est.n_used} '
+        message = (f'{_sweep_label(request.iteration)}: {len(sweep)} pairs{rates}, GP on {est.n_used} '
                    f'samples, max std {float(np.max(est.std)):.3f} N')
         self._last, self._last_ok = message, True
         self._estimates += 1

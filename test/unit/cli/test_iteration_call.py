@@ -86,3 +86,13 @@ def test_a_busy_copy_waits_for_the_first_request_and_a_lone_refusal_ends_the_cal
     other = service._IterationCall(client, object(), status, clock[0])
     client.sent[-1].response = reply(False, 'an iteration is running: wait for it or call ...')
     assert other.poll() and not other.answer.success   # somebody else's iteration: said at once
+
+
+def test_status_before_any_iteration_says_so():
+    status = SimpleNamespace(state='idle', iteration=-1, progress=0.0, target='parabolic',
+                             rmse=float('nan'), fan_names=['A', 'B'], pwm=[0.5, 0.5],
+                             run_folder='runs/default', samples=0, message='')
+    text = service.format_status(status)
+    assert text.startswith('coordinator: idle, no iteration yet') and '-1' not in text
+    assert 'coordinator: done, iteration 3 (100%)' in service.format_status(
+        SimpleNamespace(**{**vars(status), 'state': 'done', 'iteration': 3, 'progress': 1.0}))

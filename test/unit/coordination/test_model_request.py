@@ -21,8 +21,10 @@ def run(setup, tmp_path):
 
 def test_the_model_comes_from_the_text_when_there_is_one(setup, run):
     text = (setup.config_dir / 'model.yaml').read_text()
-    got, source, model = read_model(run, Limits(), text, '/ignored/when/text/is/given.yaml')
-    assert got == text and source == 'the model_yaml text' and model is not None
+    got, source, model = read_model(run, Limits(), text, '/not/read/when/text/is/given.yaml')
+    assert got == text and model is not None
+    assert source == '/not/read/when/text/is/given.yaml (sent as text)'   # the path names the text
+    assert read_model(run, Limits(), text, '')[1] == 'the model_yaml text'
 
 
 def test_else_from_the_file(setup, run):

@@ -132,10 +132,10 @@ def test_a_busy_coordinator_says_what_runs_and_how_to_cancel_it(clock):
     assert book.busy('/wind_shaper/cancel_iteration') == ''
     book.begin(0.0)
     book.enter(SWEEPING, '')
-    assert book.busy('/c') == 'an iteration is running (k=3, sweeping): wait for it or call /c'
+    wait = 'wait for it or cancel it (`wind-shaper cancel`, or call /c)'
+    assert book.busy('/c') == f'an iteration is running (k=3, sweeping): {wait}'
     assert book.busy('/c', holding=True).startswith('a held-plate point is being recorded')
-    assert book.busy('/c', 'exp: starting, idle') == ('an experiment is running (exp: starting, '
-                                                      'idle): wait for it or call /c')
+    assert book.busy('/c', 'exp: starting, idle') == f'an experiment is running (exp: starting, idle): {wait}'
     assert book.cancel_text().startswith('cancelling iteration 3 (sweeping)')
     assert 'the fans go off' in book.cancel_text('exp: sweep 1 of 2 (a), sweeping')
 

@@ -49,3 +49,16 @@ def test_maps_of_other_key_points_or_fans_or_malformed_are_not_used_and_say_why(
 def test_an_unreadable_file_has_no_maps_and_says_why(tmp_path):
     got, note = commissioning_maps_in(tmp_path / 'missing.yaml', KP, 3)
     assert got == [] and 'cannot be read' in note
+
+
+def test_the_priors_error_is_read_from_whichever_measure_its_file_keeps(tmp_path):
+    """`calibrate` keeps heldout_rmse_N, `model add --save` heldout_model_rmse_N beside the
+    fit's own rmse_N; the held-out one is taken first, NaN when none is kept."""
+    from wind_shaper.model.modelfile import model_error
+    path = tmp_path / 'm.yaml'
+    for keys, expected in [({'heldout_rmse_N': 0.3, 'rmse_N': 0.2}, 0.3),
+                           ({'heldout_model_rmse_N': 0.04, 'rmse_N': 0.2}, 0.04),
+                           ({'rmse_N': 0.2}, 0.2), ({}, None)]:
+        path.write_text(yaml.safe_dump({'wind_shaper_model': 1, **keys}))
+        got = model_error(path)
+        assert (np.isnan(got) if expected is None else got == expected), (keys, got)
