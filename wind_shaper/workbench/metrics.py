@@ -66,18 +66,42 @@ def evaluate(model: Term, data: FitData, labels=None) -> dict:
 
 
 def _pairs(sweeps: SweepSet, max_distance: float, min_dt: float):
-    """Index pairs (P, 2) into the pooled raw samples: same sweep, within ``max_distance`` [m],
-    at least ``min_dt`` [s] apart."""
-    out, offset = [], 0
+    """(pairs, blocks): index pairs (P, 2) into the pooled raw samples, same sweep, within
+    ``max_distance`` [m], at least ``min_dt`` [s] apart; and each pooled sample's time block
+    (M,), ``min_dt`` long and numbered across the sweeps (the turbulence of two blocks is
+    independent, within one it is not)."""
+    out, blocks, offset, first_block = [], [], 0, 0
     for s in sweeps.sweeps:
         clean = s.finite()
+        if len(clean):
+            block = np.floor((clean.times - clean.times.min()) / min_dt).astype(np.int64)
+            blocks.append(block + first_block)
+            first_block += int(block.max()) + 1
         if len(clean) > 1:
             p = cKDTree(clean.positions).query_pairs(max_distance, output_type='ndarray')
             if len(p):
                 p = p[np.abs(clean.times[p[:, 0]] - clean.times[p[:, 1]]) >= min_dt]
                 out.append(p + offset)
         offset += len(clean)
-    return np.vstack(out) if out else np.zeros((0, 2), dtype=int)
+    return (np.vstack(out) if out else np.zeros((0, 2), dtype=int),
+            np.concatenate(blocks) if blocks else np.zeros(0, dtype=np.int64))
+
+
+def _clustered_variance_of_mean(e: np.ndarray, block_i: np.ndarray, block_j: np.ndarray) -> float:
+    """The variance of mean(e) over pairs whose terms share noise through either sample's time
+    block: two-way clustered (by the first sample's block, by the second's, less by both), and
+    never below what independent pairs would give. A sample sits in many pairs and its
+    neighbours in time share its gusts, so the pairs are far fewer independent terms than
+    there are pairs."""
+    P = len(e)
+
+    def summed(ids):
+        _, inverse = np.unique(ids, return_inverse=True)
+        return float(np.sum(np.bincount(inverse.ravel(), weights=e) ** 2))
+
+    both = block_i * (int(max(block_i.max(), block_j.max())) + 1) + block_j
+    clustered = (summed(block_i) + summed(block_j) - summed(both)) / P ** 2
+    return max(clustered, float(np.var(e)) / P)
 
 
 class HeldOut:
@@ -89,14 +113,15 @@ class HeldOut:
     b^2 + a^2 F^2 to the far-in-time pairs (within ``max_distance`` [m], at least ``min_dt`` [s]
     apart) and averaged over every held-out sample at the model's force: ``noise_sd`` [N].
     ``resolution`` [N] is the smallest model error the pairs can tell from zero (two standard
-    errors of the noise variance); a smaller estimate reads "at the noise floor".
+    errors of the noise variance, the pairs clustered by the samples' time blocks of
+    ``min_dt``); a smaller estimate reads "at the noise floor".
     """
 
     def __init__(self, sweeps: SweepSet, *, max_distance: float = 0.012, min_dt: float = 0.5,
                  noise_sd: float | None = None):
         self.sweeps = sweeps
         self.data = sweeps.fit_data(cell=None)
-        self.pairs = _pairs(sweeps, max_distance, min_dt)
+        self.pairs, self._blocks = _pairs(sweeps, max_distance, min_dt)
         self.noise_sd = noise_sd
         self.resolution = float('nan')
 
@@ -114,9 +139,11 @@ class HeldOut:
         coef, _ = nnls(np.column_stack([np.ones(len(half)), F2]), half)
         var = coef[0] + coef[1] * m * m
         mean_var = float(np.mean(var))
-        # standard error of the mean variance: pairs' spread around the fitted law
+        # standard error of the mean variance: pairs' spread around the fitted law, clustered by
+        # the samples' time blocks (pairs sharing a sample or its gusts are not independent)
         pred = coef[0] + coef[1] * F2
-        se = float(np.std(half - pred) / np.sqrt(len(half)) * mean_var / max(float(np.mean(pred)), 1e-12))
+        spread = _clustered_variance_of_mean(half - pred, self._blocks[i], self._blocks[j])
+        se = float(np.sqrt(spread) * mean_var / max(float(np.mean(pred)), 1e-12))
         self.resolution = float(np.sqrt(2 * se))
         return float(np.sqrt(mean_var))
 

@@ -82,6 +82,12 @@ def _verdict_text(case) -> str:
                 f'fitted to that. ' + time_text(case) + ' Then diagnose again.')
     if case.verdict == 'explained':
         test = f'; {case.noise_floor.text()}' if case.noise_floor is not None else ''
+        if case.noise_floor is not None and not case.noise_floor.within:
+            # resolved by the held-out sweeps, but too small to name an effect for
+            return (f'Nothing to report: the held-out model error {base} is below '
+                    f'{100 * case.settings.material:.0f} % of the measurement noise '
+                    f'({case.noise_sd:.3f} N per sample), too small an error to name an effect for, '
+                    f'though the held-out sweeps resolve it ({case.noise_floor.text()}).')
         return (f'Nothing to report: the model explains these sweeps to the noise level (held-out '
                 f'model error {base} against measurement noise {case.noise_sd:.3f} N per '
                 f'sample{test}).')

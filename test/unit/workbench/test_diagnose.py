@@ -158,3 +158,20 @@ def test_guard_texts_read_naturally_for_rises():
     assert _change_text(-0.001) == 'does not change'
     assert _bic_text(15.0) == 'rises 15.0' and _bic_text(-4.1) == 'falls only 4.1'
     assert drop_text(0.76) == '76 % lower' and drop_text(-9.12) == '912 % higher' and drop_text(-0.001) == '0 %'
+
+
+def test_a_resolved_error_too_small_to_name_is_reported_without_contradiction():
+    """Below half the noise an error names no effect even where the held-out sweeps resolve it:
+    the verdict then says both, never "to the noise level" beside "above the bound"."""
+    from types import SimpleNamespace
+
+    from wind_shaper.workbench.noise_floor import NoiseFloor
+    from wind_shaper.workbench.verdict import _verdict_text
+    above = NoiseFloor(ratio=1.5, bound=1.11, n=4000, n_eff=1500, noise_df=float('inf'), noise_sd=0.09)
+    case = SimpleNamespace(verdict='explained', baseline_rmse=0.044, noise_floor=above, noise_sd=0.09,
+                           settings=SimpleNamespace(material=0.5))
+    text = _verdict_text(case)
+    assert 'below 50 % of the measurement noise' in text and 'resolve it' in text
+    assert 'to the noise level' not in text
+    within = NoiseFloor(ratio=1.0, bound=1.11, n=4000, n_eff=1500, noise_df=float('inf'), noise_sd=0.09)
+    assert 'to the noise level' in _verdict_text(SimpleNamespace(**{**vars(case), 'noise_floor': within}))

@@ -82,3 +82,32 @@ def test_clean_sweeps_describe_nothing_and_say_so(diagnosed):
     assert 'to the noise level' in d.summary() and '0.000 N' not in d.summary()
     floor = d.to_json()['noise_floor']
     assert floor['n_eff'] < floor['n'] and floor['bound'] > 1
+
+
+def test_the_noise_estimates_stated_uncertainty_matches_its_scatter_on_dense_gusty_sweeps():
+    """The noise variance from revisits: on sweeps sampled at 100 Hz with gusts that last
+    several samples (as a force stream averaged over 10 ms gives), the standard error it
+    states (``resolution``, which sets the F-test's bound) is about its actual scatter over
+    repeated sweeps; counting every pair as independent stated a sixth of it, and the test
+    then called the model error of clean data material."""
+    from wind_shaper.core.tunnel import Sweep
+    from wind_shaper.workbench.data import SweepSet
+    from wind_shaper.workbench.metrics import HeldOut
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 20.0, 0.01)
+    path = np.c_[0.25 * np.sin(2 * np.pi * t / 4.0), 0.25 * np.sin(2 * np.pi * t / 9.7)]   # revisits
+
+    def gusty():
+        ar = lfilter([np.sqrt(1 - 0.86 ** 2)], [1, -0.86], rng.standard_normal(len(t)))
+        return 0.09 * (np.sqrt(0.3) * rng.standard_normal(len(t)) + np.sqrt(0.7) * ar)
+    flat = lambda U, Z: np.full(len(Z), 2.0)   # noqa: E731 - the field is known exactly
+    variances, stated = [], []
+    for _ in range(40):
+        held = HeldOut(SweepSet([Sweep(path, 2.0 + gusty(), t, np.full(7, 0.5)) for _ in range(2)],
+                                tuple(f'f{i}' for i in range(7))))
+        sd = held.estimate_noise(flat)
+        variances.append(sd ** 2)
+        stated.append(held.resolution ** 2 / 2 / sd ** 2)    # relative standard error
+    actual = np.std(variances) / np.mean(variances)
+    assert 0.6 < np.mean(stated) / actual < 1.5, (np.mean(stated), actual)
+    assert abs(np.sqrt(np.mean(variances)) - 0.09) < 0.01
