@@ -53,13 +53,13 @@ from ..ros.runner import run
 from ..ros.waiting import in_thread
 
 
-@dataclass(frozen=True)
-
 def _sweep_label(k: int) -> str:
     """How a log line names the sweep of request index ``k`` (-1: a held point or another
     measurement that belongs to no iteration)."""
     return f'iteration {k}' if k >= 0 else 'a measurement outside the iterations'
 
+
+@dataclass(frozen=True)
 class FieldEstimatorParams:
     config_dir: str = param('', "folder holding tunnel.yaml and shaping.yaml ('' = the shipped "
                             'config, or $WIND_SHAPER_CONFIG)')

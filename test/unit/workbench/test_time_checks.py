@@ -4,6 +4,7 @@ verdict says what the fault is, what to do at the rig and which repair to give."
 from dataclasses import replace
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from wind_shaper.core.tunnel import Sweep
@@ -83,6 +84,26 @@ def test_a_ramp_within_every_sweep_is_named_and_not_the_order(wb_setup, referenc
     out = _run(_recording(ramped, reference, wb_setup))
     assert out['within_sweep'].fault and 'within the sweeps' in out['within_sweep'].message
     assert not out['recording_order'].fault and not out['sensor_zero'].fault
+
+
+def test_a_pattern_fixed_in_space_that_the_paths_meet_late_is_no_drift(wb_setup, reference, sim_data):
+    """Each sweep gets a residual fixed in space (per 3 cm cell, the mean time its own path was
+    there, 0.3 N over a sweep): over time it rises in every sweep, as a wall layer does on paths
+    that leave the axis, but a place visited twice reads the same. The within-sweep check takes
+    its slopes from those revisits and calls no drift; the plain slope over time did."""
+    data, _ = sim_data()
+    patterned = []
+    for s in data.sweeps:
+        cells = np.floor(s.positions / 0.03).astype(int)
+        _, cell, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+        cell = cell.ravel()
+        when = np.bincount(cell, weights=s.times) / counts       # the mean time in each cell [s]
+        patterned.append(Sweep(s.positions, s.forces + 0.3 * when[cell] / s.times[-1], s.times, s.pwm))
+    out = _run(_recording(SweepSet(tuple(patterned), data.fan_names, data.source, data.labels),
+                          reference, wb_setup))
+    within = out['within_sweep']
+    assert not within.fault, within.message
+    assert within.numbers['sweeps_from_revisits'] >= 10
 
 
 def test_the_time_checks_can_be_switched_off_and_a_fault_need_not_hold_the_findings(diagnosed):
