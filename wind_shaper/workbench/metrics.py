@@ -24,7 +24,12 @@ from scipy.spatial import cKDTree
 from ..model import Term
 from .data import FitData, SweepSet
 
-__all__ = ['Scores', 'scores', 'evaluate', 'HeldOut']
+__all__ = ['Scores', 'scores', 'evaluate', 'HeldOut', 'REVISIT_M', 'REVISIT_S']
+
+#: A place a sweep's path visits twice: two samples within this distance [m] ...
+REVISIT_M = 0.012
+#: ... and at least this far apart in time [s], far enough for independent turbulence.
+REVISIT_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -117,7 +122,7 @@ class HeldOut:
     ``min_dt``); a smaller estimate reads "at the noise floor".
     """
 
-    def __init__(self, sweeps: SweepSet, *, max_distance: float = 0.012, min_dt: float = 0.5,
+    def __init__(self, sweeps: SweepSet, *, max_distance: float = REVISIT_M, min_dt: float = REVISIT_S,
                  noise_sd: float | None = None):
         self.sweeps = sweeps
         self.data = sweeps.fit_data(cell=None)

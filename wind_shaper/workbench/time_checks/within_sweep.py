@@ -19,14 +19,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..metrics import REVISIT_M, REVISIT_S
 from .base import Recording, TimeCheck, TimeResult, register_time_check, t_limit
 
 __all__ = ['WithinSweep']
 
-#: A place visited twice: two samples within this distance [m] (the noise estimate's revisits).
-REVISIT_M = 0.012
-#: ... at least this far apart in time [s].
-REVISIT_S = 0.5
 #: Fewest revisit pairs a sweep's slope is taken from (else its plain slope over time).
 MIN_REVISITS = 20
 
