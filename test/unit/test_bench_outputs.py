@@ -180,3 +180,31 @@ def test_the_self_check_counts_a_method_behind_itself_only_where_its_seeds_diffe
     assert conv.self_check(rows(R), rows(worse, 'another, uniform'))['cases'] == 0   # no case in common
     conv.print_self_check(rows(R), rows(worse))
     assert 'B behind A in 1, A behind B in 0, one behind the other in 1' in capsys.readouterr().out
+
+
+def test_a_gap_is_called_behind_with_confidence_only_where_the_seeds_could_not_give_it():
+    """``behind_confident``: two runs of one method on other seeds (each seed 4 % apart) are
+    behind at some k in most cases by the worst ratio of medians, and almost never by the
+    bootstrap's lower bound; a 5 % gap at one k on runs that scatter 1 % is found at that k,
+    the same gap on runs that scatter 20 % is not."""
+    conv = _load('convergence')
+    rng = np.random.default_rng(3)
+    base = 1.0 + 0.3 * np.exp(-np.arange(13))
+
+    def runs(sd):
+        return base * np.exp(sd * rng.standard_normal((10, 13)))
+    worst_behind = confident = 0
+    for _ in range(60):
+        a, b = runs(0.04), runs(0.04)
+        worst_behind += (np.median(a, 0) / np.median(b, 0))[2:].max() > conv.BEHIND
+        confident += conv.behind_confident(a, b)['behind']
+    assert worst_behind > 30 and confident <= 3
+    tight = runs(0.01)
+    tight[:, 3] *= 1.05
+    found = conv.behind_confident(tight, runs(0.01))
+    assert found['behind'] and found['k'] == 3 and 1.02 < found['lower'] < 1.05
+    loose = runs(0.2)
+    loose[:, 3] *= 1.05
+    assert not conv.behind_confident(loose, runs(0.2))['behind']
+    assert conv.behind_confident(tight[:1], tight)['k'] is None       # one seed: no bound
+    assert conv.behind_confident(tight, runs(0.01)[:7])['behind']  # other seed counts are fine
