@@ -822,7 +822,9 @@ def print_warm_checks(rows):
     set against the flat start's own largest gap between its two halves of seeds
     (``seed_half_gap``, ``behind_flat``): a gap within it is what other seeds could give; and,
     where the results keep the measured errors, against the scatter of one sweep's measured error
-    near the optimum (``sweep_error_sd``): a smaller gap is one a lab could not see. Then
+    near the optimum (``sweep_error_sd``): a smaller gap is one a lab could not see; and the
+    gap the seeds leave with confidence (``behind_confident``): a case behind only by the worst
+    ratio, not by that bound, is one other seeds may well not show behind. Then
     the field estimate's calibration: z = (estimate - true field) / std at the key points, its
     RMS and the share outside 2 sigma."""
     print('\nShipped default (warm start) against the flat start, medians over seeds: worst '
