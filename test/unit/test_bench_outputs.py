@@ -197,7 +197,7 @@ def test_a_gap_is_called_behind_with_confidence_only_where_the_seeds_could_not_g
     for _ in range(60):
         a, b = runs(0.04), runs(0.04)
         worst_behind += (np.median(a, 0) / np.median(b, 0))[2:].max() > conv.BEHIND
-        confident += conv.behind_confident(a, b)['behind']
+        confident += conv.behind_confident(a, b, n_boot=4000)['behind']
     assert worst_behind > 30 and confident <= 3
     tight = runs(0.01)
     tight[:, 3] *= 1.05
