@@ -65,6 +65,7 @@ _RANGES = {
     'commissioning_reach': (0, 1, 'a PWM fraction'),
     'pool_within': (0, 1, 'a PWM fraction'),
     'curve_sd': (0, 1, "a share of the fan's thrust"),
+    'curve_risk': (0, 10, "times the curves' posterior variance"),
 }
 
 
@@ -114,7 +115,11 @@ class AdaptiveUpdate:
     bumps by which each fan's gain varies with its own command in the per-fan fit
     (``ShapeFit.curve_sd``: a stall dip or a dead band in one fan's curve; 0: none; dense priors
     only, a large wall's fit keeps per-fan gains), used only while the commissioning's maps are
-    in the fit (``_curve_learnable``); ``info['curve']`` says whether it was.
+    in the fit (``_curve_learnable``); ``info['curve']`` says whether it was; curve_risk [-]: while
+    the curves are bent, each step minimises the predicted error plus this times the variance
+    the fit's posterior leaves in each fan's curve over the fan's move from the base (fan by
+    fan), so that a move across a part of a curve no map has pinned down (a stall dip seen by
+    one sweep) pays for what it may turn out to be; 0: the predicted error alone.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -147,6 +152,7 @@ class AdaptiveUpdate:
     commissioning_reach: float = 0.15
     commissioning_anchor: bool = True
     curve_sd: float = 0.0
+    curve_risk: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -290,6 +296,7 @@ class AdaptiveUpdate:
         fitted = len(maps) >= self.fit_from
         slope = 0.0   # the shared load slope of the gains (ShapeFit.load_sd), dense priors only
         curved = False   # whether the fit bent the fans' curves (``_curve_learnable``)
+        curve_cov = None   # (n, K, K): the posterior covariance of each fan's curve weights
         if basis is not None and basis.sparse:
             # A large wall: per-fan gains only, on the Gram matrix of the footprints (cached per
             # run); no secant and no swirl term; the step is a bounded QP in thrust space.
@@ -321,7 +328,11 @@ class AdaptiveUpdate:
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
                 abs_maps += [(U, F, share * w) for U, F, w in broad]
-                theta = fit.fit(basis, abs_maps, on)
+                if self.curve_risk > 0 and fit.curved:
+                    theta, cov = fit.fit_posterior(basis, abs_maps, on)
+                    curve_cov = fit.curve_cov(cov, basis.n_fans)
+                else:
+                    theta = fit.fit(basis, abs_maps, on)
             else:
                 theta = fit.prior(basis.n_fans)[0]
             Smat = fit.shape_matrix(basis, theta)
@@ -431,13 +442,16 @@ class AdaptiveUpdate:
                 pred = pred + secant.matvec(U - U_b)
             return pred, J
 
-        def objective(pred):
-            return float(np.mean(w_b * pred ** 2))
+        risk = None if curve_cov is None else _CurveRisk(basis, curve_cov, U_b, self.curve_risk * w_b)
+
+        def objective(pred, U):
+            f = float(np.mean(w_b * pred ** 2))
+            return f if risk is None else f + risk(U)[0]
 
         idx = np.flatnonzero(on)
         U_c = U_b.copy()
         pred_c, J_c = predict(U_c)
-        f_c = objective(pred_c)
+        f_c = objective(pred_c, U_c)
         if J_b is None:  # large wall: the bounded QP in thrust space is the whole step
             if idx.size:
                 U_c = _thrust_space_qp(basis, gains, r_b, U_b, lo, hi, idx, self.damping)
@@ -450,7 +464,7 @@ class AdaptiveUpdate:
             S_step = Smat if not slope else Smat + slope * ShapeFit.load(U_b, on) * basis.shape
             U_t = _thrust_space_step(basis, S_step, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
             pred_t, J_t = predict(U_t)
-            f_t = objective(pred_t)
+            f_t = objective(pred_t, U_t)
             if f_t < f_c:
                 U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
                 # the convex thrust-space problem decides which limits are active: fans it put on
@@ -459,14 +473,18 @@ class AdaptiveUpdate:
                 pinned = (U_t <= lo + 1e-12) | (U_t >= hi - 1e-12)
                 lo, hi = np.where(pinned, U_t, lo), np.where(pinned, U_t, hi)
         for _ in range(self.inner_iterations if idx.size and J_b is not None else 0):
+            separable = None
+            if risk is not None:   # in the solver's units: summed over the key points
+                _, h_fan, g_fan = risk(U_c)
+                separable = (N * h_fan[idx], N * g_fan[idx])
             du = _bounded_lsq(J_c, secant, pred_c, np.sqrt(w_b), idx, lo[idx] - U_c[idx], hi[idx] - U_c[idx],
-                              self.damping)
+                              self.damping, separable)
             t, improved = 1.0, False
             while t > 1e-3:
                 U_t = U_c.copy()
                 U_t[idx] = np.clip(U_c[idx] + t * du, lo[idx], hi[idx])
                 pred_t, J_t = predict(U_t)
-                f_t = objective(pred_t)
+                f_t = objective(pred_t, U_t)
                 if f_t < f_c:
                     improved = True
                     break
@@ -509,6 +527,37 @@ class AdaptiveUpdate:
         # the first trust region (without a history it is step_fraction / (k + 1), the paper's
         # schedule); the radius itself [PWM fraction] is info['radius']
         return UpdateStep(U_next, self.step_fraction * radius / self.radius, U_next - U_k, info)
+
+
+class _CurveRisk:
+    """What the fans' uncertain curves add to a step's expected error [N^2, a key point's mean]:
+
+        R(U) = sum_j s_j d_j^T C_j d_j,  d_j = a_j(U_j) phi(U_j) - a_j(U_b,j) phi(U_b,j),
+
+    with phi the curve's bumps (``ShapeFit.bumps``), C_j the posterior covariance of fan j's
+    curve weights, and s_j the mean over the key points of weight x footprint^2 (the weights
+    carry ``curve_risk``). The field is anchored at the base's map, so only the change from the
+    base is uncertain; the fans' curves are taken as independent of each other and of the
+    other parameters (the blocks between them are left out)."""
+
+    def __init__(self, basis: FanBasis, curve_cov, U_b, weights):
+        self.basis, self.cov = basis, curve_cov
+        a_b, _ = basis.thrust(U_b)
+        self.at_base = a_b * ShapeFit.bumps(U_b)[0]              # (K, n)
+        shape = basis.shape.toarray() if sp.issparse(basis.shape) else np.asarray(basis.shape)
+        self.scale = np.mean(np.asarray(weights, float)[:, None] * shape ** 2, axis=0)   # (n,)
+
+    def __call__(self, U):
+        """R(U), and per fan the curvature and slope of its own term in its move (for the
+        bounded step's Gauss-Newton model)."""
+        a, da = self.basis.thrust(U)
+        phi, dphi = ShapeFit.bumps(U)
+        d = (a * phi - self.at_base).T                           # (n, K)
+        g = (da * phi + a * dphi).T                              # (n, K)
+        Cd = np.einsum('jkl,jl->jk', self.cov, d)
+        Cg = np.einsum('jkl,jl->jk', self.cov, g)
+        value = float(np.sum(self.scale * np.sum(d * Cd, axis=1)))
+        return value, self.scale * np.sum(g * Cg, axis=1), self.scale * np.sum(g * Cd, axis=1)
 
 
 def _pooled_residual(maps, window, b, near, noise2, M_vals, M_b, within):

@@ -63,11 +63,13 @@ def _thrust_space_step(basis, Smat, residual, sw, U_b, lo, hi, idx, damping=0.0)
     return U
 
 
-def _bounded_lsq(J, secant, residual, sw, idx, lb, ub, damping: float = 0.0) -> np.ndarray:
+def _bounded_lsq(J, secant, residual, sw, idx, lb, ub, damping: float = 0.0, separable=None) -> np.ndarray:
     """argmin ||sw (J_idx du + D_idx du + residual)||^2 + damping sum_j ||sw A_j||^2 du_j^2 over
     lb <= du <= ub (the enabled fans idx; A = J + D): a bounded, Marquardt-damped
     Gauss-Newton step (the damping keeps nearly collinear fans from trading large opposite
-    moves that the model cannot vouch for)."""
+    moves that the model cannot vouch for). separable: (h, g), each (len(idx),), adds
+    sum_j (h_j du_j^2 + 2 g_j du_j) to the squared norm: a cost of each fan's own move
+    (``AdaptiveUpdate.curve_risk``)."""
     A = J[:, idx]
     if secant is not None:
         A = A + secant.matrix()[:, idx]
@@ -78,7 +80,11 @@ def _bounded_lsq(J, secant, residual, sw, idx, lb, ub, damping: float = 0.0) -> 
         return np.zeros(len(idx))
     H = A.T @ A
     H[np.diag_indices_from(H)] *= 1.0 + damping
-    return box_qp(H, -(A.T @ b), lb, ub)
+    g = -(A.T @ b)
+    if separable is not None:
+        H[np.diag_indices_from(H)] += separable[0]
+        g = g + separable[1]
+    return box_qp(H, g, lb, ub)
 
 
 def box_qp(H, g, lb, ub, iterations: int = 100) -> np.ndarray:

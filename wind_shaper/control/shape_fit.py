@@ -150,6 +150,12 @@ class ShapeFit:
 
     def fit(self, basis: FanBasis, maps, enabled) -> np.ndarray:
         """theta = [c0, then one block of n_fans per basis] from maps [(U (n,), F (N,), w (N,))]."""
+        return self.fit_posterior(basis, maps, enabled)[0]
+
+    def fit_posterior(self, basis: FanBasis, maps, enabled):
+        """theta as ``fit`` and its posterior covariance (P, P), in theta's units: zero rows and
+        columns for what is held at its prior (a disabled fan's parameters, a rising load slope
+        held at 0). None in place of the covariance for a large wall's sparse fit."""
         n = basis.n_fans
         mats = self.matrices(basis)
         mean, std = self.prior(n)
@@ -180,7 +186,7 @@ class ShapeFit:
             keep = np.flatnonzero(~frozen)
             theta = mean.copy()
             theta[keep] += spsolve(A[keep][:, keep].tocsc(), b[keep])
-            return theta
+            return theta, None
         A = np.zeros((P, P))
         b = np.zeros(P)
         cache = basis.__dict__.setdefault('_normal_cache', {})
@@ -216,7 +222,21 @@ class ShapeFit:
             keep[-1] = False
             theta = mean.copy()
             theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
-        return theta
+        # A is the posterior precision times noise_std^2 (the maps' weights are in units of it)
+        cov = np.zeros((P, P))
+        cov[np.ix_(keep, keep)] = self.noise_std ** 2 * np.linalg.inv(A[np.ix_(keep, keep)])
+        return theta, cov
+
+    def curve_cov(self, cov, n: int) -> np.ndarray:
+        """(n, K, K): each fan's block of ``cov`` for its curve weights (``curve_sd``; the
+        blocks between fans are left out)."""
+        K = len(CURVE_CENTRES)
+        start = 1 + len(self.bases) * n
+        out = np.zeros((n, K, K))
+        for j in range(n):
+            ix = start + np.arange(K) * n + j
+            out[j] = cov[np.ix_(ix, ix)]
+        return out
 
     def shape_matrix(self, basis: FanBasis, theta):
         """sum_b B_b diag(theta_b): (N, n) footprints of the corrected prior per unit a_j."""

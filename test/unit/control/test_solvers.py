@@ -484,3 +484,94 @@ def test_the_curve_is_bent_only_while_the_commissioning_maps_are_in_the_fit(rig,
 def test_a_curve_sd_outside_its_range_is_refused():
     with pytest.raises(ConfigError, match='curve_sd'):
         AdaptiveUpdate(curve_sd=2.0)
+
+
+
+def _maps_running(rig, prior, rng, fan, high, n=8):
+    """Commissioning-like maps with every fan across 0.1-0.9 but ``fan`` only up to ``high``."""
+    out = []
+    for _ in range(n):
+        V = rng.uniform(0.1, 0.9, 7)
+        V[fan] = rng.uniform(0.05, high)
+        out.append(PastIteration(V, prior(V, rig.key_points), None, {}))
+    return out
+
+
+def _curve_fit(rig, prior, high, seed=3):
+    basis = FanBasis.from_term(prior, rig.key_points)
+    fit = ShapeFit(noise_std=0.1, curve_sd=0.07)
+    maps = [(p.U, p.mean, np.full(len(rig.key_points), 0.5))
+            for p in _maps_running(rig, prior, np.random.default_rng(seed), 3, high)]
+    theta, cov = fit.fit_posterior(basis, maps, rig.fans.enabled)
+    assert np.allclose(theta, fit.fit(basis, maps, rig.fans.enabled))
+    return basis, fit, fit.curve_cov(cov, 7)
+
+
+def test_the_curve_posterior_is_narrow_only_where_the_maps_ran_the_fan(rig, prior):
+    """A gain change shows in the field in proportion to the fan's thrust, so the maps pin a
+    curve down where they ran the fan hard; where none did, it keeps about the prior's spread."""
+    def sd(C, fan, u):   # the posterior sd of the fan's curve correction h(u)
+        phi = ShapeFit.bumps(np.full(7, u))[0][:, fan]
+        return float(np.sqrt(phi @ C[fan] @ phi))
+
+    _, _, seen = _curve_fit(rig, prior, 0.95)
+    _, _, unseen = _curve_fit(rig, prior, 0.4)
+    prior_sd = 0.07 * float(np.linalg.norm(ShapeFit.bumps(np.full(7, 0.8))[0][:, 3]))
+    assert sd(unseen, 3, 0.8) > 0.8 * prior_sd
+    assert sd(seen, 3, 0.8) < 0.75 * sd(unseen, 3, 0.8)
+    assert sd(unseen, 0, 0.8) < 0.75 * sd(unseen, 3, 0.8)   # the other fans ran there
+
+
+def test_the_curve_risk_grows_with_a_move_where_no_map_has_been_and_matches_its_derivatives(rig, prior):
+    from wind_shaper.control.adaptive import _CurveRisk
+    U_b = np.full(7, 0.4)
+    risks = {high: _CurveRisk(*_curve_fit(rig, prior, high)[::2], U_b, np.ones(len(rig.key_points)))
+             for high in (0.4, 0.95)}
+
+    def moved(fan, du):
+        U = U_b.copy()
+        U[fan] += du
+        return U
+
+    risk = risks[0.4]
+    assert risk(U_b)[0] == pytest.approx(0.0, abs=1e-15)
+    assert 0 < risk(moved(3, 0.2))[0] < risk(moved(3, 0.4))[0]
+    # the same move where the maps did run the fan costs far less
+    assert risks[0.95](moved(3, 0.4))[0] < 0.5 * risk(moved(3, 0.4))[0]
+    assert risk(moved(0, 0.4))[0] < 0.5 * risk(moved(3, 0.4))[0]
+    # the per-fan curvature and slope of the Gauss-Newton model against finite differences
+    _, h, g = risk(moved(3, 0.2))
+    for fan in (0, 3):
+        e = 1e-5
+        up = risk(moved(fan, 0.2 * (fan == 3) + e))[0]
+        down = risk(moved(fan, 0.2 * (fan == 3) - e))[0]
+        assert (up - down) / (2 * e) == pytest.approx(2 * g[fan], rel=1e-3, abs=1e-9)
+        assert h[fan] > 0
+
+
+def test_with_curve_risk_a_step_into_a_curve_no_map_has_pinned_down_is_shorter(rig, prior):
+    """The same step asked of a fan whose curve the maps show there, and of one whose curve they
+    do not: the risk shortens the second far more."""
+    kp = rig.key_points
+    U = np.full(7, 0.4)
+    history = [PastIteration(np.full(7, 0.42), prior(np.full(7, 0.42), kp), None, {'radius': 0.35})]
+    Ut = U.copy()
+    Ut[3] = 0.6
+    target = prior(Ut, kp)
+    shrink = {}
+    for high in (0.4, 0.95):
+        maps = _maps_running(rig, prior, np.random.default_rng(3), 3, high)
+        move = {}
+        for r in (0.0, 10.0):
+            step = AdaptiveUpdate(curve_sd=0.07, curve_risk=r).step(
+                _inputs(rig, prior, U, prior(U, kp), target, history, k=1, prior_maps=maps))
+            assert step.info['curve']
+            move[r] = step.U_next[3] - U[3]
+        assert move[0.0] > 0.15                      # without the risk: most of the way
+        shrink[high] = move[10.0] / move[0.0]
+    assert shrink[0.4] < 0.85 and shrink[0.4] < shrink[0.95] - 0.04, shrink
+
+
+def test_a_curve_risk_outside_its_range_is_refused():
+    with pytest.raises(ConfigError, match='curve_risk'):
+        AdaptiveUpdate(curve_risk=-1.0)
