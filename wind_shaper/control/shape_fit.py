@@ -150,12 +150,15 @@ class ShapeFit:
 
     def fit(self, basis: FanBasis, maps, enabled) -> np.ndarray:
         """theta = [c0, then one block of n_fans per basis] from maps [(U (n,), F (N,), w (N,))]."""
-        return self.fit_posterior(basis, maps, enabled)[0]
+        return self._fit(basis, maps, enabled, False)[0]
 
     def fit_posterior(self, basis: FanBasis, maps, enabled):
         """theta as ``fit`` and its posterior covariance (P, P), in theta's units: zero rows and
         columns for what is held at its prior (a disabled fan's parameters, a rising load slope
         held at 0). None in place of the covariance for a large wall's sparse fit."""
+        return self._fit(basis, maps, enabled, True)
+
+    def _fit(self, basis: FanBasis, maps, enabled, with_cov: bool):
         n = basis.n_fans
         mats = self.matrices(basis)
         mean, std = self.prior(n)
@@ -222,6 +225,8 @@ class ShapeFit:
             keep[-1] = False
             theta = mean.copy()
             theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
+        if not with_cov:
+            return theta, None
         # A is the posterior precision times noise_std^2 (the maps' weights are in units of it)
         cov = np.zeros((P, P))
         cov[np.ix_(keep, keep)] = self.noise_std ** 2 * np.linalg.inv(A[np.ix_(keep, keep)])
