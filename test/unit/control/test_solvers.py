@@ -486,7 +486,6 @@ def test_a_curve_sd_outside_its_range_is_refused():
         AdaptiveUpdate(curve_sd=2.0)
 
 
-
 def _maps_running(rig, prior, rng, fan, high, n=8):
     """Commissioning-like maps with every fan across 0.1-0.9 but ``fan`` only up to ``high``."""
     out = []
@@ -525,8 +524,10 @@ def test_the_curve_posterior_is_narrow_only_where_the_maps_ran_the_fan(rig, prio
 def test_the_curve_risk_grows_with_a_move_where_no_map_has_been_and_matches_its_derivatives(rig, prior):
     from wind_shaper.control.adaptive import _CurveRisk
     U_b = np.full(7, 0.4)
-    risks = {high: _CurveRisk(*_curve_fit(rig, prior, high)[::2], U_b, np.ones(len(rig.key_points)))
-             for high in (0.4, 0.95)}
+    risks = {}
+    for high in (0.4, 0.95):
+        basis, _, curve_cov = _curve_fit(rig, prior, high)
+        risks[high] = _CurveRisk(basis, curve_cov, U_b, np.ones(len(rig.key_points)))
 
     def moved(fan, du):
         U = U_b.copy()
@@ -551,7 +552,7 @@ def test_the_curve_risk_grows_with_a_move_where_no_map_has_been_and_matches_its_
 
 def test_with_curve_risk_a_step_into_a_curve_no_map_has_pinned_down_is_shorter(rig, prior):
     """The same step asked of a fan whose curve the maps show there, and of one whose curve they
-    do not: the risk shortens the second far more."""
+    do not: the risk shortens the second more."""
     kp = rig.key_points
     U = np.full(7, 0.4)
     history = [PastIteration(np.full(7, 0.42), prior(np.full(7, 0.42), kp), None, {'radius': 0.35})]
