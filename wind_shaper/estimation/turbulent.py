@@ -169,11 +169,11 @@ def _nll(x, design: _Design, level, r):
     r (k, m) [N]: force levels and centred forces."""
     p = _from_vector(x)
     K, E, s, T = design.cov(p, level)
-    try:
+    try:   # either can fail at a nearly singular K (the LU solve even after the Cholesky passed)
         L = np.linalg.cholesky(K)
+        Kinv = np.linalg.inv(K)
     except np.linalg.LinAlgError:
         return 1e25, np.zeros(len(x))
-    Kinv = np.linalg.inv(K)
     alpha = np.einsum('kij,kj->ki', Kinv, r)
     value = 0.5 * np.sum(r * alpha) + np.sum(np.log(_diag(L)))
     W = alpha[:, :, None] * alpha[:, None, :]

@@ -103,6 +103,21 @@ def test_the_likelihood_gradient_is_exact():
         assert g[i] == pytest.approx(num, rel=1e-4, abs=1e-5)
 
 
+def test_a_covariance_the_inverse_refuses_is_a_bad_step_for_the_fit_not_a_crash(monkeypatch):
+    """At a nearly singular covariance the LU-based inverse can fail where the Cholesky factor
+    passed (seen once in a shaping run): the likelihood answers 'far off', and the fit goes on."""
+    X, y, t = synthetic(TRUTH, n=150, seed=1)
+    d = turbulent._Design(X[None], y[None], t[None])
+    args = (d, np.abs(d.y), d.y - y.mean())
+    x = turbulent._to_vector(TRUTH)
+
+    def singular(a):
+        raise np.linalg.LinAlgError('Singular matrix')
+    monkeypatch.setattr(turbulent.np.linalg, 'inv', singular)
+    value, grad = turbulent._nll(x, *args)
+    assert value >= 1e25 and not np.any(grad)
+
+
 def test_every_fitted_value_stays_inside_its_bounds():
     X, y, t = synthetic(TRUTH, seed=2)
     tight = {'length_scale': (0.2, 0.25), 'absolute': (0.05, 0.06), 'relative': (0.001, 0.01),
