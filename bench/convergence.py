@@ -14,12 +14,13 @@ Methods:
   warm+short  the warm start with sweeps as long as needed (the shipped default)
   warm+region warm+short, and after the first sweep only the region the step changed
 
-Plants (the prior is commissioned on each plant as the commissioning guide says, 6 designed
-moving-plate sweeps with every fan running fitted by `wind-shaper calibrate --data`, unless said
+Plants (the prior is commissioned on each plant as the commissioning guide says, the 7 designed
+moving-plate sweeps of `lhs:6+level` fitted by `wind-shaper calibrate --data`, unless said
 otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
 fan alone, which tells the prior nothing of how the fans interact; the runs' update also fits
-the designed sweeps' field maps (the first step all of them, later steps those near them), which
-`calibrate --data` keeps in the model file, unless ``--no-prior-maps``):
+the designed sweeps' field maps (the first step all of them, later steps those near them and
+the level sweep's, every fan at the middle of the range, in every step), which `calibrate --data`
+keeps in the model file, unless ``--no-prior-maps``; ``--no-level-sweep``: `lhs:6` alone):
   nominal          the default 7-fan rig (prior: config/model.yaml)
   radius 0.20      hexagon fans 0.20 m from the axis instead of 0.25 m
   unequal curves   every fan on its own throttle curve (U ** p_j, p_j = 0.75-1.5: sim effect
@@ -59,7 +60,7 @@ tunnels above (see ``load_tunnel_file``; without ``--plants`` only the files' tu
 Usage: python bench/convergence.py [--seeds 5] [--iterations 12] [--quick] [--plants ...]
                                    [--tunnel FILE.yaml ...] [--methods ...]
                                    [--calibration held|sweeps:N[:SEED]]
-                                   [--no-prior-maps] [--zeta-cache FILE] [--json FILE]
+                                   [--no-level-sweep] [--no-prior-maps] [--zeta-cache FILE] [--json FILE]
 Results: bench/out/convergence.json (bench/out/convergence_quick.json for --quick; with --tunnel,
 convergence_own.json and convergence_own_quick.json).
 """
@@ -226,8 +227,9 @@ def _edited_config(folder: Path, edits: dict) -> Path:
 #: How the calibrated plants' priors are commissioned: 'held' (the paper's held-plate batch,
 #: every fan alone) or 'sweeps:N' (the design lhs:N within the shaping bounds, every fan off in
 #: the first and last sweep, swept and fitted as `collect --design lhs:N` and `calibrate --data`
-#: do: ``workbench.calibrate.commission_from_design``; 'sweeps:N:S' draws the design with seed S, 0 otherwise)
-CALIBRATION = {'how': 'sweeps:6'}
+#: do: ``workbench.calibrate.commission_from_design``; 'sweeps:N:S' draws the design with seed S, 0 otherwise);
+#: level: with the design's level sweep (lhs:N+level, the default; ``--no-level-sweep``: without)
+CALIBRATION = {'how': 'sweeps:6', 'level': True}
 #: Whether the runs get the commissioning's sweeps as field maps for their update, as a lab's
 #: do when `calibrate --data` kept them in the model file (``--no-prior-maps``: without)
 PRIOR_MAPS = {'use': True}
@@ -245,7 +247,8 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float, tuple]:
                                                      save_calibration)
         _, n_sweeps, *design_seed = how.split(':')
         shaping = setup.shaping
-        cal = commission_from_design(sim, f'lhs:{n_sweeps}', shaping.u_min, shaping.u_max,
+        design = f'lhs:{n_sweeps}' + ('+level' if CALIBRATION['level'] else '')
+        cal = commission_from_design(sim, design, shaping.u_min, shaping.u_max,
                                      n_samples=shaping.samples_per_sweep,
                                      seed=int(design_seed[0]) if design_seed else 0)
         save_calibration(setup.model_path, cal)
@@ -523,6 +526,9 @@ def main(argv=None):
                     help="how the calibrated tunnels' priors are commissioned: the paper's "
                          "held-plate batch (every fan alone), or N designed moving-plate sweeps "
                          "with every fan running (as `collect --design lhs` and `calibrate --data`)")
+    ap.add_argument('--no-level-sweep', action='store_true',
+                    help='commission from lhs:N alone, without its level sweep (every fan at the middle '
+                         'of the range, which the update keeps among a run\'s maps: level_map)')
     ap.add_argument('--no-prior-maps', action='store_true',
                     help="the runs' first step without the commissioning's sweeps as field maps "
                          "(what a model file without them gives)")
@@ -557,6 +563,7 @@ def main(argv=None):
         ap.error(f'--calibration must be held, sweeps:N or sweeps:N:SEED with N >= 3; got {args.calibration!r}')
     CALIBRATION['how'] = args.calibration
     PRIOR_MAPS['use'] = not args.no_prior_maps
+    CALIBRATION['level'] = not args.no_level_sweep
     if args.summary_from:
         print_summary(json.loads(Path(args.summary_from).read_text())['cases'])
         return
@@ -617,7 +624,7 @@ def main(argv=None):
     print(f'\n({time.perf_counter() - t_start:.0f} s)')
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     meta = {'seeds': seeds, 'first_seed': args.first_seed, 'iterations': args.iterations, 'within': WITHIN, 'source': args.source,
-            'calibration': args.calibration, 'prior_maps': not args.no_prior_maps, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
+            'calibration': args.calibration, 'level_sweep': not args.no_level_sweep, 'prior_maps': not args.no_prior_maps, 'methods': methods, 'estimator': args.estimator, 'sweep': args.sweep,
             'definitions': __doc__}
     Path(args.json).write_text(json.dumps({'meta': meta, 'cases': rows}, indent=1, default=str))
     print(f'wrote {args.json}')

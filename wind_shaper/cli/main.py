@@ -92,9 +92,9 @@ def _cmd_calibrate(args) -> int:
     from ..app import Setup, calibrate, save_fit
     if int(args.sim) + int(bool(args.data)) + int(args.held) != 1:
         print('wind-shaper calibrate needs one source: --data RUN_OR_BAG (moving-plate sweeps at '
-              'varied commands, e.g. from `wind-shaper collect --design lhs:6 --out NAME`), --held '
+              'varied commands, e.g. from `wind-shaper collect --design lhs:6+level --out NAME`), --held '
               '(the held-plate batch, guided through the node graph) or --sim (that batch on the '
-              'built-in simulated tunnel, in-process; with --design lhs:6 designed sweeps there '
+              'built-in simulated tunnel, in-process; with --design lhs:6+level designed sweeps there '
               'instead)', file=sys.stderr)
         return 2
     if args.design and not args.sim:
@@ -227,9 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--sim', action='store_true', help='collect the held-plate batch on the simulated '
                                                       'tunnel and fit the paper\'s prior to it')
     p.add_argument('--design', default=None, metavar='SPEC',
-                   help='with --sim: sweep the simulated tunnel at a designed experiment instead (lhs:N, '
+                   help='with --sim: sweep the simulated tunnel at a designed experiment instead (lhs:N[+level], '
                         'single-off, or a CSV/YAML design, as `collect --design`) and fit the prior to '
-                        'those sweeps, every fan running; the recommended commissioning (lhs:6)')
+                        'those sweeps, every fan running; the recommended commissioning (lhs:6+level)')
     p.add_argument('--out', type=Path, default=None,
                    help='model file to write (default: models/<data or batch name>.yaml with '
                         '--data or --held, config/model.yaml with --sim)')

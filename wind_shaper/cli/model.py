@@ -109,7 +109,7 @@ def _cmd_fit(args) -> int:
         print(f'nothing held out: {n} sweep{"" if n == 1 else "s"} (3 or more are needed to keep '
               f'some out), so the fit is not judged on sweeps it did not see, and on sweeps at so few '
               f'commands its parameters and their errors mean little; record more at varied commands '
-              f'(`wind-shaper collect --design lhs:6 --out NAME`) and fit on all of them')
+              f'(`wind-shaper collect --design lhs:6+level --out NAME`) and fit on all of them')
     print(f'report: {out}/ (report.html, report.md, summary.json)')
     return 0
 

@@ -119,7 +119,14 @@ class AdaptiveUpdate:
     the curves are bent, each step minimises the predicted error plus this times the variance
     the fit's posterior leaves in each fan's curve over the fan's move from the base (fan by
     fan), so that a move across a part of a curve no map has pinned down (a stall dip seen by
-    one sweep) pays for what it may turn out to be; 0: the predicted error alone.
+    one sweep) pays for what it may turn out to be; 0: the predicted error alone; level_map: the
+    commissioning's first map with every enabled fan at one command (the level sweep of
+    `collect --design lhs:N+level`) is one of the run's maps in every update while the tunnel
+    is the one commissioned: fitted at full weight, however far from the base, and in the
+    secant. The run's own maps sit near an optimum that keeps some fans low, where their thrust,
+    and so what the maps show of them, is small; the level map shows every fan running at one
+    load, in the middle of the range, where the fans' curves have no ends to bend the fit (the
+    designed sweeps' far maps fade instead). ``info['level_map']`` says whether it was used.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -153,6 +160,7 @@ class AdaptiveUpdate:
     commissioning_anchor: bool = True
     curve_sd: float = 0.0
     curve_risk: float = 0.0
+    level_map: bool = True
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -256,6 +264,13 @@ class AdaptiveUpdate:
         history = inp.history if target is not None else ()
         maps = [(np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
                  None if p.std is None else np.asarray(p.std, float), dict(p.info)) for p in history]
+        # The commissioning's level map (every enabled fan at one command) joins the run's maps,
+        # first (``level_map``); never a base to step from.
+        use_level = self.level_map and target is not None and self.commissioning_weight > 0
+        level = [p for p in inp.prior_maps if is_level(p.U, on)] if use_level else []
+        n_level = len(level[:1])
+        maps = [(np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
+                 None if p.std is None else np.asarray(p.std, float), {'commissioning': True}) for p in level[:1]] + maps
         maps.append((U_k, -delta, None if inp.std is None else np.asarray(inp.std, float), {}))
         noise2 = [self.noise_std ** 2 + (0.0 if s is None else s ** 2) for _, _, s, _ in maps]
         weights = [np.ones(N) if not self.weighting else 1.0 / (1.0 + (0.0 if s is None else s ** 2) / self.noise_std ** 2)
@@ -266,8 +281,11 @@ class AdaptiveUpdate:
 
         # -- the maps the steps build on and the fit uses (``chain``: restarts, relearning) ------
         base_from, fit_from = chain_start([m[3] for m in maps])
+        base_from = max(base_from, n_level)
         if relearn is not None:
             base_from = fit_from = len(maps) - 1
+        if n_level and history and not self._still_commissioned(history, fit_from, relearn):
+            fit_from = max(fit_from, n_level)   # not the tunnel commissioned: its map goes too
         restarted = relearn is not None or (bool(history) and base_from == len(maps) - 1
                                              and 'restart_next' in dict(history[-1].info))
 
@@ -282,14 +300,15 @@ class AdaptiveUpdate:
             near = [1.0] * len(maps)
         # the fit and the secant use the most recent `memory` maps and the base (a bound on the
         # cost of long runs; a default-length run keeps all its maps)
-        window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b})
+        window = sorted(set(range(max(fit_from, len(maps) - self.memory), len(maps))) | {b}
+                        | set(range(fit_from, n_level)))
         # The first update also fits the commissioning's maps (``UpdateInput.prior_maps``): the
         # run has one map, at the prior's optimum, and a step from a fit on it alone lands
         # where that map cannot tell; maps across the command range can. Later updates fit
         # only those near the base (``commissioning_reach``): far maps weigh heavily on a fit's
         # slopes and would hold the steps near the optimum to the prior's form.
         kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b))
-                if w > 1e-3 * self.commissioning_weight]   # fainter ones change no fit, cost time
+                if w > 1e-3 * self.commissioning_weight and not (n_level and p is level[0])]   # fainter ones: no change, cost time
         broad = [(np.asarray(p.U, float), np.asarray(p.mean, float), self._fit_weight(p, w)) for p, w in kept]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)
@@ -380,7 +399,7 @@ class AdaptiveUpdate:
 
         # -- does the newest map contradict what the earlier ones taught? -----------------------
         if relearn is None and self.relearn:
-            verdict = contradiction(maps, fit_from, model, 0.5 * self.noise_std)
+            verdict = contradiction(maps, max(fit_from, n_level), model, 0.5 * self.noise_std)
             if verdict is not None and verdict.contradicts:
                 return self._step(inp, relearn=verdict)
 
@@ -517,7 +536,7 @@ class AdaptiveUpdate:
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
-                'load_slope': float(slope), 'curve': bool(curved),
+                'load_slope': float(slope), 'curve': bool(curved), 'level_map': bool(n_level and fit_from < n_level),
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}
@@ -558,6 +577,12 @@ class _CurveRisk:
         Cg = np.einsum('jkl,jl->jk', self.cov, g)
         value = float(np.sum(self.scale * np.sum(d * Cd, axis=1)))
         return value, self.scale * np.sum(g * Cg, axis=1), self.scale * np.sum(g * Cd, axis=1)
+
+
+def is_level(U, enabled, tol: float = 1e-6) -> bool:
+    """Whether commands U [fraction] run every enabled fan at one command above 0."""
+    u = np.asarray(U, float)[np.asarray(enabled, bool)]
+    return bool(u.size and u.min() > 0 and u.max() - u.min() <= tol)
 
 
 def _pooled_residual(maps, window, b, near, noise2, M_vals, M_b, within):

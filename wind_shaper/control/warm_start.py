@@ -38,7 +38,7 @@ PROMISE_FACTOR = 3.0
 #: What to do about a prior that does not describe the tunnel: a prior fitted on sweeps with
 #: every fan running knows how they act on each other (the held-plate batch runs each alone)
 RECALIBRATE = ('when you can, recalibrate it from designed sweeps with every fan running '
-               '(`wind-shaper collect --design lhs:6 --out NAME`, then `wind-shaper calibrate '
+               '(`wind-shaper collect --design lhs:6+level --out NAME`, then `wind-shaper calibrate '
                '--data runs/NAME`)')
 
 

@@ -6,6 +6,9 @@ PWM in the tunnel's fan order. ``make_design(spec, fans, u_min, u_max)`` builds 
 * ``lhs:N``: N sweeps, the first and last with every fan off (a background or dead band shows
   there), the rest a Latin hypercube over [u_min, u_max] (each fan spread evenly, independently
   of the others: what the diagnosis needs to tell the fans' effects apart);
+* ``lhs:N+level``: the same and one more sweep, before the last, with every enabled fan at the
+  middle of the range (the level sweep the shaping's update keeps among a run's maps,
+  ``AdaptiveUpdate.level_map``; the recommended commissioning is ``lhs:6+level``);
 * ``single-off``: every fan at the middle of the range, then each enabled fan off in turn;
 * a CSV file (header: ``label`` (optional) then the fan names, in any order; one row per sweep) or
   a YAML file (``design: [{label: ..., pwm: {FAN: value, ...}}, ...]``).
@@ -171,16 +174,21 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
     spec = str(spec).strip()
     n = fans.n_fans
     if spec.startswith('lhs:'):
+        body, level = (spec[4:-len('+level')], True) if spec.endswith('+level') else (spec[4:], False)
         try:
-            count = int(spec[4:])
+            count = int(body)
         except ValueError:
             count = 0
         if count < 3:
             raise DesignError(f'{spec!r}: write lhs:N with N >= 3 sweeps (the first and last are '
-                              f'fans off); the diagnosis wants 8-12')
+                              f'fans off; lhs:N+level adds one with every fan at the middle of the '
+                              f'range); the diagnosis wants 8-12')
         inner = design_commands(n, count - 2, low=u_min, high=u_max, seed=seed, enabled=fans.enabled)
         commands = np.vstack([np.zeros(n), inner, np.zeros(n)])
         labels = ['fans off'] + [f'lhs {i + 1}' for i in range(count - 2)] + ['fans off again']
+        if level:   # every fan at the middle of the range, before the last sweep with fans off
+            commands = np.vstack([commands[:-1], np.where(fans.enabled, 0.5 * (u_min + u_max), 0.0), commands[-1:]])
+            labels = labels[:-1] + ['level (middle)'] + labels[-1:]
         return check_design(list(fans.names), commands, labels, fans, u_min, u_max, spec)
     if spec == 'single-off':
         mid = 0.5 * (u_min + u_max)
@@ -197,7 +205,7 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
     elif path.suffix.lower() in ('.yaml', '.yml'):
         names, commands, labels = _read_yaml(path)
     else:
-        raise DesignError(f'unknown design {spec!r}: give lhs:N, single-off, or a .csv or .yaml file')
+        raise DesignError(f'unknown design {spec!r}: give lhs:N, lhs:N+level, single-off, or a .csv or .yaml file')
     return check_design(names, commands, labels, fans, u_min, u_max, str(path))
 
 

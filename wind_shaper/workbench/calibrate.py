@@ -61,12 +61,12 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
     if len(data) < MIN_SWEEPS:
         raise DataSourceError(f'{len(data)} sweep(s) cannot calibrate a prior: record at least '
                               f'{MIN_SWEEPS} at different commands (`wind-shaper collect --design '
-                              f'lhs:6`)')
+                              f'lhs:6+level`)')
     spread = data.command_spread(np.asarray(prior.fans.enabled, bool))['median']
     if spread < 0.05:
         raise DataSourceError(f'the sweeps\' commands hardly vary (median spread {100 * spread:.1f} % '
                               f'PWM): a prior fitted on them cannot tell the fans apart; record a '
-                              f'designed experiment (`wind-shaper collect --design lhs:6`)')
+                              f'designed experiment (`wind-shaper collect --design lhs:6+level`)')
     train, test = data.split(test_fraction)
     graded = fit_model(prior, train.fit_data(cell), max_nfev=max_nfev)
     held = test.fit_data(cell)
