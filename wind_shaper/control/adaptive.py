@@ -262,15 +262,16 @@ class AdaptiveUpdate:
         # every map of the run: (U, F - F_des, std). Without the target the earlier maps cannot
         # be related to this one (only F_des - F_k is known), so the history is not used.
         history = inp.history if target is not None else ()
-        maps = [(np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
-                 None if p.std is None else np.asarray(p.std, float), dict(p.info)) for p in history]
+
+        def as_map(p, info):
+            return (np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
+                    None if p.std is None else np.asarray(p.std, float), info)
         # The commissioning's level map (every enabled fan at one command) joins the run's maps,
         # first (``level_map``); never a base to step from.
         use_level = self.level_map and target is not None and self.commissioning_weight > 0
-        level = [p for p in inp.prior_maps if is_level(p.U, on)] if use_level else []
-        n_level = len(level[:1])
-        maps = [(np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
-                 None if p.std is None else np.asarray(p.std, float), {'commissioning': True}) for p in level[:1]] + maps
+        level = [p for p in inp.prior_maps if is_level(p.U, on)][:1] if use_level else []
+        n_level = len(level)
+        maps = [as_map(p, {'commissioning': True}) for p in level] + [as_map(p, dict(p.info)) for p in history]
         maps.append((U_k, -delta, None if inp.std is None else np.asarray(inp.std, float), {}))
         noise2 = [self.noise_std ** 2 + (0.0 if s is None else s ** 2) for _, _, s, _ in maps]
         weights = [np.ones(N) if not self.weighting else 1.0 / (1.0 + (0.0 if s is None else s ** 2) / self.noise_std ** 2)
