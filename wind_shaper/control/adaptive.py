@@ -309,7 +309,7 @@ class AdaptiveUpdate:
         # only those near the base (``commissioning_reach``): far maps weigh heavily on a fit's
         # slopes and would hold the steps near the optimum to the prior's form.
         kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b))
-                if w > 1e-3 * self.commissioning_weight and not (n_level and p is level[0])]   # fainter ones: no change, cost time
+                if w > 1e-3 * self.commissioning_weight and all(p is not q for q in level)]   # fainter ones: no change, cost time
         broad = [(np.asarray(p.U, float), np.asarray(p.mean, float), self._fit_weight(p, w)) for p, w in kept]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
         basis = self._basis(inp)

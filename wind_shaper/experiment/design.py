@@ -173,6 +173,7 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
     """The design of ``spec`` (see the module docstring) for ``fans``, within [u_min, u_max]."""
     spec = str(spec).strip()
     n = fans.n_fans
+    mid = 0.5 * (u_min + u_max)
     if spec.startswith('lhs:'):
         body, level = (spec[4:-len('+level')], True) if spec.endswith('+level') else (spec[4:], False)
         try:
@@ -187,11 +188,10 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
         commands = np.vstack([np.zeros(n), inner, np.zeros(n)])
         labels = ['fans off'] + [f'lhs {i + 1}' for i in range(count - 2)] + ['fans off again']
         if level:   # every fan at the middle of the range, before the last sweep with fans off
-            commands = np.vstack([commands[:-1], np.where(fans.enabled, 0.5 * (u_min + u_max), 0.0), commands[-1:]])
+            commands = np.vstack([commands[:-1], np.where(fans.enabled, mid, 0.0), commands[-1:]])
             labels = labels[:-1] + ['level (middle)'] + labels[-1:]
         return check_design(list(fans.names), commands, labels, fans, u_min, u_max, spec)
     if spec == 'single-off':
-        mid = 0.5 * (u_min + u_max)
         rows, labels = [np.where(fans.enabled, mid, 0.0)], ['all at the middle']
         for j in np.flatnonzero(fans.enabled):
             row = rows[0].copy()

@@ -386,7 +386,6 @@ SAG = [{'name': 'supply_sag', 'sag': 0.3}, {'name': 'recirculation_core', 'share
        {'name': 'weak_fan', 'fan': 'LM3', 'gain': 0.85}]
 
 
-@pytest.mark.timeout(400)   # commissions a tunnel and runs four shaping runs (60 s alone on 2 cores)
 def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
     """The soaring profile on a sagging supply, the prior commissioned from `lhs:6+level`: after
     the first step the run's maps sit within a few hundredths of PWM of each other and the
