@@ -66,6 +66,8 @@ _RANGES = {
     'pool_within': (0, 1, 'a PWM fraction'),
     'curve_sd': (0, 1, "a share of the fan's thrust"),
     'curve_risk': (0, 10, "times the curves' posterior variance"),
+    'spread_sd': (0, 1, "a share of each fan's force"),
+    'tilt_sd': (0, 5, 'N per 0.1 m across the section'),
 }
 
 
@@ -126,7 +128,13 @@ class AdaptiveUpdate:
     secant. The run's own maps sit near an optimum that keeps some fans low, where their thrust,
     and so what the maps show of them, is small; the level map shows every fan running at one
     load, in the middle of the range, where the fans' curves have no ends to bend the fit (the
-    designed sweeps' far maps fade instead). ``info['level_map']`` says whether it was used.
+    designed sweeps' far maps fade instead). ``info['level_map']`` says whether it was used;
+    spread_sd [-], tilt_sd [N per 0.1 m]: the prior sds of the per-fan fit's share of every
+    jet's force spread evenly over the key points (never below 0) and of a plane across the
+    section (``ShapeFit``; 0: none; dense priors only): a screen's or mixing's even share grows
+    with the total thrust, a warm wall's or a draft's plane stays whatever the fans do; left
+    out, the fit bends the gains and the load slope to hold them, and the steps mispredict how
+    the field's level follows the fans. ``info['spread_share']`` is the share used.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -161,6 +169,8 @@ class AdaptiveUpdate:
     curve_sd: float = 0.0
     curve_risk: float = 0.0
     level_map: bool = True
+    spread_sd: float = 0.0
+    tilt_sd: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -315,6 +325,7 @@ class AdaptiveUpdate:
         basis = self._basis(inp)
         fitted = len(maps) >= self.fit_from
         slope = 0.0   # the shared load slope of the gains (ShapeFit.load_sd), dense priors only
+        spread = 0.0   # the share of the jets spread over the section (ShapeFit.spread_sd), the same
         curved = False   # whether the fit bent the fans' curves (``_curve_learnable``)
         curve_cov = None   # (n, K, K): the posterior covariance of each fan's curve weights
         if basis is not None and basis.sparse:
@@ -335,6 +346,7 @@ class AdaptiveUpdate:
             fit = ShapeFit(bases=BASES if self.correction == 'shape' else ('gain',),
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
                            gain_common_sd=self.gain_common_sd, load_sd=self.load_sd,
+                           spread_sd=self.spread_sd, tilt_sd=self.tilt_sd,
                            curve_sd=self.curve_sd if self._curve_learnable(inp, history, fit_from, relearn) else 0.0)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
@@ -358,6 +370,7 @@ class AdaptiveUpdate:
             Smat = fit.shape_matrix(basis, theta)
             g_swirl = fit.swirl_gain(theta)
             slope = fit.load_slope(theta)
+            spread = fit.spread_share(theta)
             curved = fit.curved
             dload = np.where(on, 1.0 / max(1, int(on.sum())), 0.0)   # dL/dU
 
@@ -537,7 +550,7 @@ class AdaptiveUpdate:
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
-                'load_slope': float(slope), 'curve': bool(curved), 'level_map': bool(n_level and fit_from < n_level),
+                'load_slope': float(slope), 'spread_share': float(spread), 'curve': bool(curved), 'level_map': bool(n_level and fit_from < n_level),
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}

@@ -147,6 +147,11 @@ class FanBasis:
         return np.asarray(self.shape.sum(axis=0)).ravel()
 
     @property
+    def shape_means(self) -> np.ndarray:
+        """m_j (n,): each fan's footprint's mean over the key points [N per unit thrust]."""
+        return np.asarray(self.shape.mean(axis=0)).ravel()
+
+    @property
     def spin(self) -> np.ndarray:
         """(n,) +1 for CCW fans, -1 for CW (seen from above)."""
         return self.term.fans.spin_sign

@@ -58,6 +58,19 @@ class ShapeFit:
     at 0 when the free fit's slope is positive: no shared supply makes a fan stronger). 0: no
     such term. Dense priors only.
 
+    spread_sd [-]: with it > 0 also fit one shared share of every fan's force at the key points
+    that lands spread evenly over them instead of in its jet, the field gaining
+    spread * sum_j m_j a_j(U_j) at every key point (m_j: fan j's footprint's mean over the key
+    points): a mesh screen or mixing above the fans, a recirculating core. Unlike the uniform
+    offset c0 it follows the fans' total thrust, so maps at different loads tell the two apart.
+    Prior 0 +- spread_sd. 0: no such term. Dense priors only.
+
+    tilt_sd [N per 0.1 m]: with it > 0 also fit a plane across the section, t_x x + t_y y
+    (x, y of the key points per 0.1 m), whatever the fans do: a warm wall's buoyant tilt, a
+    draft. It never enters a prediction (the field is anchored at a measured map, where a
+    constant background cancels), but left out it bends the fans' fitted gains and shifts.
+    Prior 0 +- tilt_sd each. 0: none. Dense priors only.
+
     swirl: also fit one global term, the whole field turning about the tunnel axis by
     phi(U) = swirl_gain * sum_j s_j a_j(U_j) / sum_j a_j(U_j) [rad] (s_j = +1 for CCW fans, -1
     for CW), the residual swirl the honeycomb leaves when CW and CCW thrusts are unbalanced
@@ -82,10 +95,25 @@ class ShapeFit:
     #: stall dip or a dead band in one fan's curve, learned from the maps that ran it at
     #: different commands. 0: none. Dense priors only.
     curve_sd: float = 0.0
+    spread_sd: float = 0.0
+    tilt_sd: float = 0.0
 
     @property
     def loaded(self) -> bool:
         return self.load_sd > 0
+
+    @property
+    def spread(self) -> bool:
+        return self.spread_sd > 0
+
+    @property
+    def tilted(self) -> bool:
+        return self.tilt_sd > 0
+
+    @property
+    def _tail(self) -> int:
+        """theta's entries after the load slope: the spread share and the plane's two slopes."""
+        return int(self.spread) + 2 * int(self.tilted)
 
     @property
     def curved(self) -> bool:
@@ -111,11 +139,13 @@ class ShapeFit:
     def prior(self, n: int):
         K = len(CURVE_CENTRES) * n * self.curved
         mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
-                              + [np.zeros(K)] + [[0.0]] * self.swirl + [[0.0]] * self.loaded)
+                              + [np.zeros(K)] + [[0.0]] * self.swirl + [[0.0]] * self.loaded
+                              + [[0.0]] * self.spread + [[0.0, 0.0]] * self.tilted)
         sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
         std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
                              + [np.full(K, self.curve_sd)]
-                             + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded)
+                             + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded
+                             + [[self.spread_sd]] * self.spread + [[self.tilt_sd] * 2] * self.tilted)
         if self.prior_mean is not None:
             mean = np.asarray(self.prior_mean, dtype=float).copy()
         return mean, std
@@ -127,7 +157,10 @@ class ShapeFit:
         return float(np.mean(np.asarray(U, float)[on])) - LOAD_REF if on.any() else 0.0
 
     def load_slope(self, theta) -> float:
-        return float(theta[-1]) if self.loaded else 0.0
+        return float(theta[-1 - self._tail]) if self.loaded else 0.0
+
+    def spread_share(self, theta) -> float:
+        return float(theta[-1 - 2 * int(self.tilted)]) if self.spread else 0.0
 
     @staticmethod
     def balance(basis: 'FanBasis', a, da=None):
@@ -142,7 +175,7 @@ class ShapeFit:
         return w, da * (basis.spin * total - net) / total ** 2
 
     def swirl_gain(self, theta) -> float:
-        return float(theta[-1 - self.loaded]) if self.swirl else 0.0
+        return float(theta[-1 - self.loaded - self._tail]) if self.swirl else 0.0
 
     def matrices(self, basis: FanBasis):
         table = {'gain': basis.shape, 'x': basis.dx, 'y': basis.dy, 'width': basis.dw}
@@ -165,14 +198,15 @@ class ShapeFit:
         P = len(mean)
         frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats)
                                 + [~np.asarray(enabled, bool)] * (len(CURVE_CENTRES) * self.curved)
-                                + [[False]] * (self.swirl + self.loaded))
+                                + [[False]] * (self.swirl + self.loaded + self._tail))
         if basis.sparse:
             if self.curved:
                 raise ConfigError('the curve correction (curve_sd) needs a dense prior; a large '
                                   'wall\'s sparse fit has per-fan gains only: set curve_sd to 0')
-            if self.loaded:
-                raise ConfigError('the load slope (load_sd) needs a dense prior; a large wall\'s '
-                                  'sparse fit has per-fan gains only: set load_sd to 0')
+            for name in ('load_sd', 'spread_sd', 'tilt_sd'):
+                if getattr(self, name) > 0:
+                    raise ConfigError(f'{name} needs a dense prior; a large wall\'s sparse fit has '
+                                      f'per-fan gains only: set {name} to 0')
             blocks, rhs = [], []
             for U, F, w in maps:
                 a, _ = basis.thrust(U)
@@ -196,7 +230,7 @@ class ShapeFit:
         if len(cache) > 64:
             cache.clear()
         for U, F, w in maps:
-            key = (self.bases, self.swirl, self.loaded, self.curved, U.tobytes(), F.tobytes(),
+            key = (self.bases, self.swirl, self.loaded, self.curved, self.spread, self.tilted, U.tobytes(), F.tobytes(),
                    w.tobytes(), mean.tobytes())
             hit = cache.get(key)
             if hit is None:
@@ -204,7 +238,9 @@ class ShapeFit:
                 curve = [basis.shape * (a * phi) for phi in self.bumps(U)[0]] if self.curved else []
                 X = np.column_stack([np.ones(len(F))] + [B * a for B in mats] + curve
                                     + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl
-                                    + [self.load(U, enabled) * (basis.shape @ a)] * self.loaded)
+                                    + [self.load(U, enabled) * (basis.shape @ a)] * self.loaded
+                                    + [np.full(len(F), float(basis.shape_means @ a))] * self.spread
+                                    + [basis.key_points[:, 0] / 0.1, basis.key_points[:, 1] / 0.1] * self.tilted)
                 Xw = X * w[:, None]
                 hit = cache[key] = (X.T @ Xw, Xw.T @ (F - basis.offset - X @ mean))
             A += hit[0]
@@ -219,10 +255,15 @@ class ShapeFit:
             A[np.ix_(g, g)] -= self.noise_std ** 2 * c2 / (sd2 * (sd2 + m * c2))
         theta = mean.copy()
         theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
-        if self.loaded and theta[-1] > 0:
-            # a shared supply or inlet can only give less as the load rises: a rising slope is
-            # other misfit (a wider start's map explained away), so the slope stays at 0
-            keep[-1] = False
+        # Signs physics rules out: a shared supply or inlet can only give less as the load rises,
+        # and a jet's force spread over the section only adds to it. A rising slope or a negative
+        # share is other misfit (a wider start's map explained away): held at 0, and refitted.
+        signed = [(P - 1 - self._tail, 1.0)] * self.loaded + [(P - 1 - 2 * int(self.tilted), -1.0)] * self.spread
+        for _ in signed:
+            wrong = [i for i, sign in signed if keep[i] and sign * theta[i] > 0]
+            if not wrong:
+                break
+            keep[wrong] = False
             theta = mean.copy()
             theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
         if not with_cov:
@@ -251,6 +292,8 @@ class ShapeFit:
             t = theta[1 + i * n:1 + (i + 1) * n]
             part = B @ sp.diags(t) if sp.issparse(B) else B * t
             out = part if out is None else out + part
+        if self.spread and not sp.issparse(out):
+            out = out + self.spread_share(theta) * np.outer(np.ones(out.shape[0]), basis.shape_means)
         return out.tocsc() if sp.issparse(out) else out
 
 

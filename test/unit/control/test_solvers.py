@@ -576,3 +576,81 @@ def test_with_curve_risk_a_step_into_a_curve_no_map_has_pinned_down_is_shorter(r
 def test_a_curve_risk_outside_its_range_is_refused():
     with pytest.raises(ConfigError, match='curve_risk'):
         AdaptiveUpdate(curve_risk=-1.0)
+
+
+def _maps_at_scattered_loads(basis, field, rng, n=6):
+    maps = []
+    for _ in range(n):
+        U = rng.uniform(0.1, 0.6, 7)
+        maps.append((U, field(U) + 0.01 * rng.normal(size=len(basis.key_points)), np.ones(len(basis.key_points))))
+    return maps
+
+
+def test_shape_fit_learns_a_share_of_the_jets_spread_over_the_section(rig, prior, rng):
+    """A fifth of every fan's force at the key points lands spread evenly over them (a mesh
+    screen): with the spread term the fit finds the share and leaves the gains at 1, and predicts
+    a new map to the noise; without it the gains take up the misfit (the central fan's most) and
+    a new map is off by a tenth of a newton."""
+    basis = FanBasis.from_term(prior, rig.key_points)
+    m = basis.shape_means
+
+    def field(U):
+        a = basis.thrust(U)[0]
+        return basis.offset + basis.shape @ a + 0.2 * float(m @ a)
+
+    maps = _maps_at_scattered_loads(basis, field, rng)
+    spread, plain = ShapeFit(noise_std=0.01, spread_sd=0.3), ShapeFit(noise_std=0.01)
+    theta, flat = spread.fit(basis, maps, rig.fans.enabled), plain.fit(basis, maps, rig.fans.enabled)
+    assert spread.spread_share(theta) == pytest.approx(0.2, abs=0.01)
+    assert np.allclose(theta[1:8], 1.0, atol=0.01)
+    assert abs(flat[1 + 6] - 1.0) > 0.05
+
+    def error(fit, th, U):
+        return np.sqrt(np.mean((basis.offset + th[0] + fit.shape_matrix(basis, th) @ basis.thrust(U)[0] - field(U)) ** 2))
+    U = rng.uniform(0.1, 0.6, 7)
+    assert error(spread, theta, U) < 0.01 and error(plain, flat, U) > 0.05
+
+
+def test_shape_fit_holds_a_negative_spread_at_zero(rig, prior, rng):
+    """Force spread over the section only adds to it: maps that would want a negative share
+    (other misfit) get the fit without the term, not a share below 0."""
+    basis = FanBasis.from_term(prior, rig.key_points)
+    m = basis.shape_means
+
+    def field(U):
+        a = basis.thrust(U)[0]
+        return basis.offset + basis.shape @ a - 0.2 * float(m @ a)
+
+    maps = _maps_at_scattered_loads(basis, field, rng)
+    spread, plain = ShapeFit(noise_std=0.01, spread_sd=0.3), ShapeFit(noise_std=0.01)
+    theta = spread.fit(basis, maps, rig.fans.enabled)
+    assert spread.spread_share(theta) == 0.0
+    assert np.allclose(theta[:-1], plain.fit(basis, maps, rig.fans.enabled))
+
+
+def test_a_plane_across_the_section_no_longer_bends_the_gains_and_the_load_slope(rig, prior, rng):
+    """A warm wall's tilt (0.15 and -0.1 N per 0.1 m along x and y) over a starved inlet
+    (slope -1): fitted as a plane it leaves each gain at 1 and finds the slope; without it the
+    fans' shifts and gains take it up at each load and the slope comes out wrong by a fifth or
+    more (-1.29 on these maps; -0.60 on another draw)."""
+    from wind_shaper.control.shape_fit import LOAD_REF
+    basis, on = FanBasis.from_term(prior, rig.key_points), rig.fans.enabled
+    tilt = np.array([0.15, -0.1])
+
+    def field(U):
+        load = float(np.mean(U[on])) - LOAD_REF
+        return basis.offset + (1.0 - 1.0 * load) * (basis.shape @ basis.thrust(U)[0]) + rig.key_points @ tilt / 0.1
+
+    maps = _maps_at_scattered_loads(basis, field, rng)
+    tilted, plain = ShapeFit(noise_std=0.01, load_sd=0.5, tilt_sd=0.3), ShapeFit(noise_std=0.01, load_sd=0.5)
+    theta, flat = tilted.fit(basis, maps, on), plain.fit(basis, maps, on)
+    assert tilted.load_slope(theta) == pytest.approx(-1.0, abs=0.03)
+    assert theta[-2:] == pytest.approx(tilt, abs=0.01)
+    assert np.allclose(theta[1:8], 1.0, atol=0.01)
+    assert abs(plain.load_slope(flat) + 1.0) > 0.2 and np.max(np.abs(flat[1:8] - 1.0)) > 0.05
+
+
+@pytest.mark.parametrize('name', ['spread_sd', 'tilt_sd'])
+def test_a_spread_or_tilt_sd_outside_its_range_is_refused(name):
+    with pytest.raises(ConfigError, match=name):
+        AdaptiveUpdate(**{name: -0.1})
