@@ -386,22 +386,30 @@ SAG = [{'name': 'supply_sag', 'sag': 0.3}, {'name': 'recirculation_core', 'share
        {'name': 'weak_fan', 'fan': 'LM3', 'gain': 0.85}]
 
 
-def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
-    """The soaring profile on a sagging supply, the prior commissioned from `lhs:6+level`: after
-    the first step the run's maps sit within a few hundredths of PWM of each other and the
-    corrected model sees no step worth taking, 2-3 % above where the level map, kept among the
-    run's maps, lets the steps go."""
+def _commissioned_on_lhs6_level(effect_specs):
+    """(setup, effects, calibration, commissioning maps): the prior commissioned on the tunnel
+    with ``effect_specs`` from `lhs:6+level`, as the commissioning guide says."""
     from wind_shaper.experiment.design import make_design
     from wind_shaper.model import paper_prior
     from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
     from wind_shaper.workbench.data import from_sim
     setup = Setup.load()
-    shaping, effects, kp = setup.shaping, list(effects_from_config(SAG)), setup.geometry.key_points
+    shaping, effects = setup.shaping, list(effects_from_config(effect_specs))
     design = make_design('lhs:6+level', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
     data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands,
                     n_samples=shaping.samples_per_sweep)
     cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
-    maps = commissioning_maps(data, shaping.make_estimator(cal.model), kp)
+    return setup, effects, cal, commissioning_maps(data, shaping.make_estimator(cal.model),
+                                                   setup.geometry.key_points)
+
+
+def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
+    """The soaring profile on a sagging supply, the prior commissioned from `lhs:6+level`: after
+    the first step the run's maps sit within a few hundredths of PWM of each other and the
+    corrected model sees no step worth taking, 2-3 % above where the level map, kept among the
+    run's maps, lets the steps go."""
+    setup, effects, cal, maps = _commissioned_on_lhs6_level(SAG)
+    shaping, kp = setup.shaping, setup.geometry.key_points
     target = setup.make_target('parabolic').values(kp)
     after = {}
     for seed in (2, 3):
@@ -430,18 +438,9 @@ def test_the_spread_and_the_tilt_keep_the_second_step_on_a_screened_warm_tunnel(
     """The uniform profile on that tunnel, its prior commissioned from `lhs:6+level`: with the
     fit's spread share and plane (the shipped settings) the commands after the second update
     give 0.0637 / 0.0641 N^2 (seeds 2, 3), without them 0.1006 / 0.0710."""
-    from wind_shaper.experiment.design import make_design
-    from wind_shaper.model import paper_prior
-    from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
-    from wind_shaper.workbench.data import from_sim
-    setup = Setup.load()
-    shaping, effects, kp = setup.shaping, list(effects_from_config(SCREEN_WARM)), setup.geometry.key_points
+    setup, effects, cal, maps = _commissioned_on_lhs6_level(SCREEN_WARM)
+    shaping, kp = setup.shaping, setup.geometry.key_points
     assert shaping.make_rule().spread_sd > 0 and shaping.make_rule().tilt_sd > 0
-    design = make_design('lhs:6+level', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
-    data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands,
-                    n_samples=shaping.samples_per_sweep)
-    cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
-    maps = commissioning_maps(data, shaping.make_estimator(cal.model), kp)
     target = setup.make_target('uniform').values(kp)
     after = {}
     for seed in (2, 3):
