@@ -181,21 +181,28 @@ COFLOW = [{'name': 'coflow_carry', 'carry': 0.3, 'thrust_ref': 3.0},
           {'name': 'tilted_fan', 'fan': 'HM1', 'shift': [0.02, -0.03]}]
 
 
-@pytest.fixture(scope='module')
-def coflow():
-    """The co-flow tunnel's prior commissioned from designed sweeps, and their field maps."""
+def _commissioned(effect_specs, design_spec: str = 'lhs:6+level'):
+    """(setup, effects, calibration, commissioning maps): the prior commissioned on the tunnel
+    with ``effect_specs`` from the designed sweeps ``design_spec``, as the commissioning guide
+    says."""
     from wind_shaper.experiment.design import make_design
     from wind_shaper.model import paper_prior
     from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
     from wind_shaper.workbench.data import from_sim
     setup = Setup.load()
-    shaping, effects = setup.shaping, list(effects_from_config(COFLOW))
-    design = make_design('lhs:6', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
+    shaping, effects = setup.shaping, list(effects_from_config(effect_specs))
+    design = make_design(design_spec, setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
     data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands,
                     n_samples=shaping.samples_per_sweep)
     cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
-    maps = commissioning_maps(data, shaping.make_estimator(cal.model), setup.geometry.key_points)
-    return setup, effects, cal, maps
+    return setup, effects, cal, commissioning_maps(data, shaping.make_estimator(cal.model),
+                                                   setup.geometry.key_points)
+
+
+@pytest.fixture(scope='module')
+def coflow():
+    """The co-flow tunnel's prior commissioned from designed sweeps, and their field maps."""
+    return _commissioned(COFLOW, 'lhs:6')
 
 
 def test_the_commissioning_maps_put_the_first_step_on_an_unfamiliar_tunnel_near_the_optimum(coflow):
@@ -386,29 +393,12 @@ SAG = [{'name': 'supply_sag', 'sag': 0.3}, {'name': 'recirculation_core', 'share
        {'name': 'weak_fan', 'fan': 'LM3', 'gain': 0.85}]
 
 
-def _commissioned_on_lhs6_level(effect_specs):
-    """(setup, effects, calibration, commissioning maps): the prior commissioned on the tunnel
-    with ``effect_specs`` from `lhs:6+level`, as the commissioning guide says."""
-    from wind_shaper.experiment.design import make_design
-    from wind_shaper.model import paper_prior
-    from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
-    from wind_shaper.workbench.data import from_sim
-    setup = Setup.load()
-    shaping, effects = setup.shaping, list(effects_from_config(effect_specs))
-    design = make_design('lhs:6+level', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
-    data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands,
-                    n_samples=shaping.samples_per_sweep)
-    cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
-    return setup, effects, cal, commissioning_maps(data, shaping.make_estimator(cal.model),
-                                                   setup.geometry.key_points)
-
-
 def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
     """The soaring profile on a sagging supply, the prior commissioned from `lhs:6+level`: after
     the first step the run's maps sit within a few hundredths of PWM of each other and the
     corrected model sees no step worth taking, 2-3 % above where the level map, kept among the
     run's maps, lets the steps go."""
-    setup, effects, cal, maps = _commissioned_on_lhs6_level(SAG)
+    setup, effects, cal, maps = _commissioned(SAG)
     shaping, kp = setup.shaping, setup.geometry.key_points
     target = setup.make_target('parabolic').values(kp)
     after = {}
@@ -438,7 +428,7 @@ def test_the_spread_and_the_tilt_keep_the_second_step_on_a_screened_warm_tunnel(
     """The uniform profile on that tunnel, its prior commissioned from `lhs:6+level`: with the
     fit's spread share and plane (the shipped settings) the commands after the second update
     give 0.0637 / 0.0641 N^2 (seeds 2, 3), without them 0.1006 / 0.0710."""
-    setup, effects, cal, maps = _commissioned_on_lhs6_level(SCREEN_WARM)
+    setup, effects, cal, maps = _commissioned(SCREEN_WARM)
     shaping, kp = setup.shaping, setup.geometry.key_points
     assert shaping.make_rule().spread_sd > 0 and shaping.make_rule().tilt_sd > 0
     target = setup.make_target('uniform').values(kp)
