@@ -202,6 +202,9 @@ class ShapingLoop:
             next_pwm, step_size = step.U_next, step.step_size
             info = {**dict(step.info), **info}
             if check is not None:
+                check = self.warm.after_first_step(check, step.info.get('predicted_error'))
+                info['warm_start'] = {**info['warm_start'], 'check': check.to_json(),
+                                      'check_text': check.text()}
                 next_pwm, restart = self.warm.next_commands(check, next_pwm)
                 info.update(restart)
         true_field = true_error = None

@@ -178,7 +178,11 @@ class ShapingRun:
             # the prior's optimum for the requested target: used only if the run is new
             warm = start_at_prior_optimum(setup, setup.load_model(), target_spec)
             u0 = warm.U
-            snapshot['warm_start'] = {**warm.to_json(), 'predicted_N': np.round(warm.predicted, 6).tolist()}
+            # all the first sweep's check needs, the restart test's target, start and idle share too
+            snapshot['warm_start'] = {**warm.to_json(), 'predicted_N': np.round(warm.predicted, 6).tolist(),
+                                      'target_N': np.round(warm.target, 6).tolist(),
+                                      'start_U': np.round(warm.start_U, 6).tolist(),
+                                      'idle_share': warm.idle_share}
         else:
             u0 = bounds.project(np.full(len(fan_names), float(setup.shaping.u0)), geo.fans.enabled)
         info = RunInfo(target_spec, tuple(fan_names), geo.key_points,
@@ -219,7 +223,11 @@ class ShapingRun:
                                  float(stored['predicted_rmse_N']),
                                  float('nan') if stored.get('model_error_N') is None else float(stored['model_error_N']),
                                  float(stored['start_rmse_N']), tuple(stored['at_upper']),
-                                 tuple(stored['at_lower']), list(stored.get('notes', [])))
+                                 tuple(stored['at_lower']), list(stored.get('notes', [])),
+                                 # run folders written before these were kept: no restart test
+                                 target=_array_or_none(stored.get('target_N')),
+                                 start_U=_array_or_none(stored.get('start_U')),
+                                 idle_share=stored.get('idle_share'))
             notes.append(('info', f'iteration 0 {run.warm.text()}'))
             notes += [('warning', n) for n in run.warm.notes]
         return run
@@ -307,6 +315,8 @@ class ShapingRun:
                                      history=tuple(self.history), prior_maps=self.prior_maps))
         U_next = step.U_next
         if check is not None:   # the prior's optimum not this tunnel's: start again wider
+            check = self.warm.after_first_step(check, step.info.get('predicted_error'))
+            warm_info['warm_start'].update(check=check.to_json(), check_text=check.text())
             U_next, restart = self.warm.next_commands(check, U_next)
             warm_info.update(restart)
         U_next = self.bounds.project(U_next, self.enabled)  # never outside the bounds
@@ -350,6 +360,10 @@ class ShapingRun:
         if data.info.get('stop'):
             text += f'; the update rule advises stopping: {data.info.get("stop_reason", "")}'
         return text
+
+
+def _array_or_none(values):
+    return None if values is None else np.asarray(values, dtype=float)
 
 
 def start_at_prior_optimum(setup, model, target_spec: str) -> WarmStart:

@@ -51,6 +51,34 @@ def test_an_iteration_goes_through_its_states_writes_the_run_and_advances(setup,
     assert again.last_rmse == pytest.approx(data.rmse)
 
 
+def test_on_weaker_fans_the_coordinator_steps_from_its_first_sweep_instead_of_starting_again(
+        setup, tmp_path, monkeypatch):
+    # every fan at 75 % thrust, uniform profile: the first sweep's error calls for a restart,
+    # the first update sees the step that closes it, so the run takes that step (as ShapingLoop)
+    from wind_shaper.control.warm_start import WarmStart
+    from wind_shaper.sim import make_effect
+    on = setup.geometry.fans.enabled
+
+    def first_iteration(name):
+        run = open_run(setup, tmp_path, target='uniform', name=name)
+        ports = SimPorts(setup)
+        ports.sim = setup.make_sim(seed=0, effects=[make_effect('weak_fan', fan=f, gain=0.75)
+                                                    for f in setup.geometry.fans.names])
+        _, rule = run.prepare()
+        return asyncio.run(run_iteration(run, ports, rule, max_sweeps=3))
+    data = first_iteration('declined')
+    check = data.info['warm_start']['check']
+    assert check['restart_declined'] and not check['restart'], check
+    assert 'restart_next' not in data.info and 'steps from here' in data.info['warm_start']['check_text']
+    assert not np.allclose(data.pwm_after[on], 0.5)
+    # were the step to keep more of the error than the share allows, the run would start again
+    keep = WarmStart.after_first_step
+    monkeypatch.setattr(WarmStart, 'after_first_step',
+                        staticmethod(lambda check, predicted, share=0.0: keep(check, predicted, 0.0)))
+    data = first_iteration('restarted')
+    assert data.info['warm_start']['check']['restart'] and 'restart_next' in data.info
+    assert np.allclose(data.pwm_after[on], 0.5)
+
 def test_a_refused_sweep_is_swept_again_and_pooled(setup, tmp_path):
     run = open_run(setup, tmp_path)
     ports = SimPorts(setup, refuse=1)
