@@ -184,6 +184,27 @@ class WarmStart:
         return self.start_U.copy(), {'restart_next': {'reason': check.text(),
                                                       'U': np.round(self.start_U, 6).tolist()}}
 
+    def to_state(self) -> dict:
+        """Everything the first sweep's check and the restart test need, for a run folder
+        (``from_state`` reads it back)."""
+        def arr(v):
+            return None if v is None else np.round(np.asarray(v, dtype=float), 6).tolist()
+        return {**self.to_json(), 'predicted_N': arr(self.predicted), 'target_N': arr(self.target),
+                'start_U': arr(self.start_U), 'idle_share': self.idle_share}
+
+    @classmethod
+    def from_state(cls, state: dict, U) -> 'WarmStart':
+        """The warm start ``to_state`` wrote, at commands ``U``; a state written before the
+        target, wider start and idle share were kept has no restart test."""
+        def arr(v):
+            return None if v is None else np.asarray(v, dtype=float)
+        error = state.get('model_error_N')
+        return cls(np.asarray(U, dtype=float), arr(state['predicted_N']), float(state['predicted_rmse_N']),
+                   float('nan') if error is None else float(error), float(state['start_rmse_N']),
+                   tuple(state['at_upper']), tuple(state['at_lower']), list(state.get('notes', [])),
+                   target=arr(state.get('target_N')), start_U=arr(state.get('start_U')),
+                   idle_share=state.get('idle_share'))
+
     def to_json(self) -> dict:
         return {'U': np.round(self.U, 6).tolist(), 'predicted_rmse_N': round(self.predicted_rmse, 5),
                 'model_error_N': None if not np.isfinite(self.model_error) else round(self.model_error, 5),

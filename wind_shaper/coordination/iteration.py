@@ -178,11 +178,7 @@ class ShapingRun:
             # the prior's optimum for the requested target: used only if the run is new
             warm = start_at_prior_optimum(setup, setup.load_model(), target_spec)
             u0 = warm.U
-            # all the first sweep's check needs, the restart test's target, start and idle share too
-            snapshot['warm_start'] = {**warm.to_json(), 'predicted_N': np.round(warm.predicted, 6).tolist(),
-                                      'target_N': np.round(warm.target, 6).tolist(),
-                                      'start_U': np.round(warm.start_U, 6).tolist(),
-                                      'idle_share': warm.idle_share}
+            snapshot['warm_start'] = warm.to_state()
         else:
             u0 = bounds.project(np.full(len(fan_names), float(setup.shaping.u0)), geo.fans.enabled)
         info = RunInfo(target_spec, tuple(fan_names), geo.key_points,
@@ -219,15 +215,7 @@ class ShapingRun:
         run.prior_maps = prior_maps
         stored = store.info.config.get('warm_start')
         if last < 0 and isinstance(stored, dict) and np.allclose(stored.get('U', []), U, atol=1e-9):
-            run.warm = WarmStart(U, np.asarray(stored['predicted_N'], float),
-                                 float(stored['predicted_rmse_N']),
-                                 float('nan') if stored.get('model_error_N') is None else float(stored['model_error_N']),
-                                 float(stored['start_rmse_N']), tuple(stored['at_upper']),
-                                 tuple(stored['at_lower']), list(stored.get('notes', [])),
-                                 # run folders written before these were kept: no restart test
-                                 target=_array_or_none(stored.get('target_N')),
-                                 start_U=_array_or_none(stored.get('start_U')),
-                                 idle_share=stored.get('idle_share'))
+            run.warm = WarmStart.from_state(stored, U)
             notes.append(('info', f'iteration 0 {run.warm.text()}'))
             notes += [('warning', n) for n in run.warm.notes]
         return run
@@ -360,10 +348,6 @@ class ShapingRun:
         if data.info.get('stop'):
             text += f'; the update rule advises stopping: {data.info.get("stop_reason", "")}'
         return text
-
-
-def _array_or_none(values):
-    return None if values is None else np.asarray(values, dtype=float)
 
 
 def start_at_prior_optimum(setup, model, target_spec: str) -> WarmStart:
