@@ -293,3 +293,29 @@ def test_a_sensor_that_starts_late_still_streams(harness):
     assert not harness.wrenches
     with SimNetFtServer(source, port=port, rate_hz=500.0):
         assert wait_for(lambda: len(harness.wrenches) >= 50, timeout_s=5.0), len(harness.wrenches)
+
+
+def test_a_stream_started_again_after_a_silence_is_stamped_at_its_own_sample_times(harness):
+    """The sensor stops sending (here: a stop request from elsewhere; on a rig a switch, a cable,
+    a sensor busy for a while); the node asks again after ``restart_after_s`` and the sensor
+    starts a new stream, numbered from 1 as every new RDT stream is. Stamps from the sequence
+    numbers must start over with it: anchored on the old stream, every later sample would be
+    stamped as many seconds early as the silence lasted, and paired with the wrong place of
+    the plate."""
+    with SimNetFtServer(source, rate_hz=500.0) as server:
+        harness.start(server, restart_after_s=0.3, sample_rate_hz=500.0)   # stamped from the numbers
+        assert wait_for(lambda: len(harness.wrenches) >= 100), len(harness.wrenches)
+        first_start = server.stream_start
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+            other.sendto(encode_request(RdtCommand.STOP_STREAMING), ('127.0.0.1', server.port))
+        assert wait_for(lambda: server.stream_start != first_start, 5.0), 'no new start request'
+        # monotonic -> system clock, as the node's stamps are on the system clock
+        wall = time.time() - time.monotonic()
+        new_start = server.stream_start + wall
+        assert server.requests['start'] >= 2
+        harness.wrenches.clear()
+        assert wait_for(lambda: len(harness.wrenches) >= 200, 5.0), len(harness.wrenches)
+    # Fx carries each record's sample time since its stream's start (1/500 s counts)
+    late = [stamp_to_seconds(m.header.stamp) - (new_start + m.wrench.force.x)
+            for m in list(harness.wrenches)[50:]]
+    assert max(abs(d) for d in late) < 0.05, (min(late), max(late))

@@ -97,6 +97,7 @@ class ForceSensorNode(LifecycleNode):
         self._sign = float(p.force_sign)
         self._client: NetFtClient | None = None
         self._sample_clock = SampleClock(p.sample_rate_hz) if p.sample_rate_hz > 0 else None
+        self._clock_restart = False   # set on a re-sent start request, applied by the reader thread
         self._lock = threading.Lock()
         self._state = 'unconfigured'
         self._configure_error = ''
@@ -211,6 +212,9 @@ class ForceSensorNode(LifecycleNode):
         if self._sample_clock is None:
             stamp = now.to_msg()
         else:
+            if self._clock_restart:
+                self._clock_restart = False
+                self._sample_clock.reset()
             stamp = seconds_to_stamp(
                 self._sample_clock.stamp(sample.rdt_sequence, now.nanoseconds * 1e-9))
         (fx, fy, fz), (tx, ty, tz) = sample.force, sample.torque
@@ -288,6 +292,9 @@ class ForceSensorNode(LifecycleNode):
             return
         try:
             client.request_stream()
+            # the new stream's numbers start over on the sensor's clock of that moment; the
+            # reader thread, which stamps, starts the clock again at its next sample
+            self._clock_restart = True
         except TransportError as exc:
             self.get_logger().warning(f'cannot re-send the start request: {exc}',
                                       throttle_duration_sec=10.0)

@@ -130,7 +130,10 @@ class RdtSequenceTracker:
         if back == 0:
             self._duplicates += 1
             return self._verdict(SequenceVerdict.DUPLICATE)
-        if back > self.max_backstep:
+        if back > self.max_backstep or (back >= self.window and seq <= self.window):
+            # far behind, or numbered from the start again while the newest is far ahead: a new
+            # stream (a sensor numbers every stream from 1; records of the old one may still
+            # have arrived after restart_stream())
             self._resyncs += 1
             self._start(seq)
             return self._verdict(SequenceVerdict.RESYNC)

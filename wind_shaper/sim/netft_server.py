@@ -133,7 +133,8 @@ class SimNetFtServer(UdpPeer):
         self._buffered: list[bytes] = []    # records of the datagram being filled
         self.max_batch = int(max_batch)
         self._rng = random.Random(self.faults.seed)
-        self._rdt_seq = int(initial_rdt_sequence)
+        self._first_rdt_sequence = int(initial_rdt_sequence)
+        self._rdt_seq = self._first_rdt_sequence
         self._ft_seq = int(initial_ft_sequence)
         self._bias = (0.0,) * 6
         self._lock = threading.Lock()
@@ -226,6 +227,10 @@ class SimNetFtServer(UdpPeer):
             self._remaining = request.sample_count
             self._k = 0
             self._t_start = time.monotonic()
+            # rdt_sequence is a record's place within its output stream: a new stream numbers
+            # from the first again (ft_sequence, the sensor's own count, carries on). Numbers
+            # carried over the silence before it would date every new record that long ago.
+            self._rdt_seq = self._first_rdt_sequence
             self._streaming = True
         elif request.command == RdtCommand.STOP_STREAMING:
             self.requests['stop'] += 1

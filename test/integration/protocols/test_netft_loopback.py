@@ -239,9 +239,26 @@ def test_restart_resets_counters_and_a_callback_error_does_not_kill_the_reader(r
     client.start(sample_count=30)
     assert wait_for(lambda: client.stats.accepted == 30, 3.0)
     assert client.stats.callback_errors == 1 and len(calls) == 30
-    client.start(sample_count=10)                          # sequence continues on the server
+    client.start(sample_count=10)                          # a new stream, numbered from 1 again
     assert wait_for(lambda: client.stats.accepted == 10, 3.0)
     assert client.stats.lost == 0 and client.stats.callback_errors == 0
+    assert calls[30:] == list(range(1, 11))
+
+
+def test_a_stream_requested_again_mid_stream_is_taken_whole(rig, wait_for):
+    # request_stream() while records flow (the node asks again when its reader fell silent for
+    # a while): the sensor starts a new stream from 1 and no record of it is taken as stale,
+    # although the old stream's numbers were far ahead
+    seen = []
+    server, client, _ = rig()
+    client.on_sample = lambda sample, stats: seen.append(sample.rdt_sequence)
+    client.start()
+    assert wait_for(lambda: len(seen) >= 1500, 5.0)
+    client.request_stream()
+    assert wait_for(lambda: 1 in seen and len(seen) - seen.index(1) >= 200, 5.0)
+    after = seen[seen.index(1):]
+    assert after == list(range(1, len(after) + 1))
+    assert client.stats.stale == 0 and client.stats.resyncs >= 1
 
 
 def test_closed_client_refuses_commands_and_bad_config_is_explained(rig, monkeypatch):

@@ -79,7 +79,7 @@ def test_record_from_before_the_first_one_is_out_of_order_but_was_never_lost():
 
 
 def test_loss_is_final_once_the_number_leaves_the_window():
-    tr, v = run([1, 20, 5], window=8)
+    tr, v = run([101, 120, 105], window=8)
     s = tr.stats
     assert v[-1] is V.STALE
     assert (s.lost, s.stale, s.out_of_order, s.accepted) == (18, 1, 1, 2)
@@ -89,6 +89,15 @@ def test_jump_larger_than_the_window_then_a_reorder_inside_it():
     tr, _ = run([1, 100, 95, 99], window=8)
     s = tr.stats
     assert s.lost == 98 - 2 and s.out_of_order == 2
+
+
+def test_a_stream_numbered_from_1_again_is_a_restart_however_short_the_old_one():
+    # the old stream's last records arrived after the start request was sent again (its
+    # restart_stream()), so the newest is far ahead when the new stream's first records come
+    tr, v = run([3000, 3001, 1, 2, 3], max_backstep=1 << 16, window=1024)
+    s = tr.stats
+    assert v[2] is V.RESYNC and v[3:] == [V.IN_ORDER, V.IN_ORDER]
+    assert (s.resyncs, s.stale, s.accepted) == (1, 0, 5)
 
 
 def test_large_backward_jump_is_a_restart():
