@@ -14,11 +14,19 @@ sweep comes from a parabola through the three grid values around its minimum. ``
 reports the median over the sweeps that move the plate under a flow, and says the clocks are
 out of step when it is at least half a sample from zero, and the sweeps agree on its sign.
 
+A clock can also step during an experiment (a time sync that jumps, a stream started again):
+then some sweeps are out of step and the others are not, and the median says nothing. Each
+sweep is also tried at lags up to ``MAX_REPAIR_S`` either way (coarsely beyond ``max_lag``,
+then refined), and a sweep is named on its own when its best lag lies at least
+``STEP_MIN_S`` from the median and pairing it there removes at least half of its own squared
+error: the model's errors of the field move with the fans, not with the path, and do not
+vanish by sliding the positions along it.
+
 Times [s], positions [m], forces [N].
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,10 +34,16 @@ from ..core.errors import ConfigError
 from ..model import Term
 from .data import SweepSet
 
-__all__ = ['SyncCheck', 'check_sync', 'repaired', 'MAX_REPAIR_S']
+__all__ = ['SyncCheck', 'check_sync', 'repaired', 'MAX_REPAIR_S', 'STEP_MIN_S']
 
 #: The largest lag [s] ``repaired`` accepts: beyond it the recording is broken, not late.
 MAX_REPAIR_S = 1.0
+#: A sweep is out of step on its own when its best lag lies this far [s] from the others'.
+STEP_MIN_S = 0.05
+#: ... and pairing it at that lag removes at least this share of its squared error.
+STEP_MIN_DROP = 0.5
+#: The coarse grid [s] of lags beyond ``max_lag`` (a lag bowl is wider: the plate crosses a jet in longer).
+_COARSE_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -46,8 +60,42 @@ class SyncCheck:
     drop: float
     agree: float
     out_of_step: bool
+    #: per_sweep's sweeps: their places in the sweep set (0-based) and labels
+    sweeps: tuple = ()
+    labels: tuple = ()
+    #: each of those sweeps' share of its own squared error removed at its best lag
+    per_sweep_drop: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: the places (0-based) of the sweeps out of step on their own (see the module docstring)
+    stepped: tuple = ()
 
     def text(self) -> str:
+        return ' '.join(t for t in (self._constant_text(), self._stepped_text()) if t)
+
+    def _stepped_text(self) -> str:
+        if not self.stepped:
+            return ''
+        at = {i: k for k, i in enumerate(self.sweeps)}
+        lags = np.array([self.per_sweep[at[i]] for i in self.stepped])
+        drops = np.array([self.per_sweep_drop[at[i]] for i in self.stepped])
+        names = ', '.join(str(self.labels[at[i]]) if self.labels else f'#{i + 1}' for i in self.stepped)
+        lo, hi = 1000 * np.min(np.abs(lags)), 1000 * np.max(np.abs(lags))
+        ms = f'{1000 * np.median(np.abs(lags)):.0f}' if hi - lo < 10 else f'{lo:.0f}-{hi:.0f}'
+        way = 'late' if np.median(lags) > 0 else 'early'
+        n = len(self.stepped)
+        return (f'{"Sweep" if n == 1 else "Sweeps"} {names} of {len(self.sweeps)} with the plate moving '
+                f'under a flow {"looks" if n == 1 else "look"} out of step on {"its" if n == 1 else "their"} '
+                f'own: in {"it" if n == 1 else "them"} the positions arrive {ms} ms {way} (pairing them so '
+                f'removes {100 * np.min(drops):.0f}-{100 * np.max(drops):.0f} % of '
+                f'{"its" if n == 1 else "their"} squared error), in the others '
+                f'{1000 * abs(self.lag_s):.0f} ms. A clock stepped while the experiment was recorded (a '
+                f'time sync that jumped, a force or motion-capture stream started again): those forces are '
+                f'paired with the wrong places, and the noise estimated from the sweeps counts that as '
+                f'turbulence, so the verdict above reads the model error too small. Record '
+                f'{"it" if n == 1 else "them"} again: in an experiment folder remove '
+                f'{"its folder" if n == 1 else "their folders"} (sweeps/sNNN, NNN the row less one) and '
+                f'run the same `wind-shaper collect` command, which records the rows not stored.')
+
+    def _constant_text(self) -> str:
         if not self.out_of_step:
             return ''
         ms = 1000.0 * abs(self.lag_s)
@@ -85,9 +133,10 @@ def check_sync(model: Term, sweeps: SweepSet, *, max_lag: float = 0.2, min_force
     """The lag between forces and positions of ``sweeps`` under ``model`` (see the module
     docstring), or None when no sweep can show it (every sweep fans off, or the plate held
     still: less than ``min_travel`` [m] of path, or forces under ``min_force`` [N] RMS).
-    ``max_lag`` [s]: the largest lag tried either way."""
-    best, sse0, sse_best, dts = [], 0.0, 0.0, []
-    for s in sweeps.sweeps:
+    ``max_lag`` [s]: the largest lag tried either way at every sample (beyond it, up to
+    ``MAX_REPAIR_S``, on a grid of 0.1 s, refined around a minimum found there)."""
+    best, drops, places, labels, sse0, sse_best, dts = [], [], [], [], 0.0, 0.0, []
+    for place, s in enumerate(sweeps.sweeps):
         s = s.finite()
         if len(s) < 20:
             continue
@@ -95,11 +144,23 @@ def check_sync(model: Term, sweeps: SweepSet, *, max_lag: float = 0.2, min_force
         travel = float(np.sum(np.hypot(*np.diff(s.positions, axis=0).T)))
         if not (dt > 0 and travel >= min_travel and np.sqrt(np.mean(s.forces ** 2)) >= min_force):
             continue
+        U = np.broadcast_to(np.asarray(s.pwm, float), (len(s), len(s.pwm)))
+
+        def sse_at(lags):
+            return np.array([float(np.sum((s.forces - model(U, s.positions_at(s.times + lag))) ** 2))
+                             for lag in lags])
         steps = int(np.ceil(max_lag / dt))
         lags = np.arange(-steps, steps + 1) * dt
-        U = np.broadcast_to(np.asarray(s.pwm, float), (len(s), len(s.pwm)))
-        sse = np.array([float(np.sum((s.forces - model(U, s.positions_at(s.times + lag))) ** 2))
-                        for lag in lags])
+        sse = sse_at(lags)
+        at_zero = sse[steps]
+        far = np.arange(max_lag + _COARSE_S, MAX_REPAIR_S + 1e-9, _COARSE_S)
+        far = np.concatenate([-far[::-1], far])
+        sse_far = sse_at(far)
+        if sse_far.size and sse_far.min() < sse.min():
+            # a minimum beyond the fine grid: the fine grid again around it
+            centre = far[int(np.argmin(sse_far))]
+            lags = centre + np.arange(-int(np.ceil(_COARSE_S / dt)), int(np.ceil(_COARSE_S / dt)) + 1) * dt
+            sse = sse_at(lags)
         k = int(np.argmin(sse))
         lag = lags[k]
         if 0 < k < len(lags) - 1:  # a parabola through the minimum and its neighbours
@@ -108,15 +169,23 @@ def check_sync(model: Term, sweeps: SweepSet, *, max_lag: float = 0.2, min_force
             if curve > 0:
                 lag += 0.5 * dt * (a - c) / curve
         best.append(lag)
+        drops.append(1.0 - float(np.min(sse)) / at_zero if at_zero > 0 else 0.0)
+        places.append(place)
+        labels.append(sweeps.labels[place] if place < len(sweeps.labels) else f'#{place}')
         dts.append(dt)
-        sse0 += sse[steps]
+        sse0 += at_zero
         sse_best += float(np.min(sse))
     if not best:
         return None
-    best = np.array(best)
+    best, drops = np.array(best), np.array(drops)
     dt = float(np.median(dts))
     median = float(np.median(best))
     agree = float(np.mean(np.sign(best) == np.sign(median))) if median != 0 else 0.0
     drop = 1.0 - sse_best / sse0 if sse0 > 0 else 0.0
     out = abs(median) >= 0.5 * dt and agree >= min_agree and len(best) >= 3
-    return SyncCheck(median, best, dt, float(drop), agree, bool(out))
+    stepped = tuple(p for p, lag, d in zip(places, best, drops)
+                    if abs(lag - median) >= max(STEP_MIN_S, 2 * dt) and d >= STEP_MIN_DROP)
+    if len(stepped) > len(best) // 2:   # most sweeps stepped: the clocks are out of step as a whole
+        stepped = ()
+    return SyncCheck(median, best, dt, float(drop), agree, bool(out), tuple(places), tuple(labels),
+                     drops, stepped)

@@ -182,7 +182,8 @@ def to_json(case) -> dict:
                            'too_little': bool(case.low_spread)},
         'clocks': ({'lag_s': round(case.sync.lag_s, 4), 'out_of_step': case.sync.out_of_step,
                     'agree': round(case.sync.agree, 3), 'mse_drop': round(case.sync.drop, 4),
-                    'per_sweep_s': [round(float(x), 4) for x in case.sync.per_sweep]}
+                    'per_sweep_s': [round(float(x), 4) for x in case.sync.per_sweep],
+                    'stepped_sweeps': [case.sync.labels[case.sync.sweeps.index(i)] for i in case.sync.stepped]}
                    if case.sync is not None else None),
         'time': [r.to_json() for r in (case.time or {}).values()],
         'time_checks': [{'check': c.name, 'question': c.question} for c in TIME_CHECKS.values()],

@@ -1,5 +1,6 @@
 """Forces and positions out of step (sync.check_sync): the lag between motion capture and the
 force sensor is measured from the sweeps, and the diagnosis says so in words."""
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -89,3 +90,36 @@ def test_every_model_command_takes_the_position_lag(wb_setup, reference):
     assert not check_sync(reference, mended).out_of_step
     args.position_lag = 0.0
     assert check_sync(reference, _data(wb_setup, args)).lag_s == pytest.approx(0.06, abs=0.004)
+
+
+def _stepped(data, places, lag):
+    """``data`` with the sweeps at ``places`` re-paired ``lag`` [s] (a clock that stepped while
+    they were recorded)."""
+    moved = [repaired(data[[i]], lag).sweeps[0] if i in places else s for i, s in enumerate(data.sweeps)]
+    return type(data)(tuple(moved), data.fan_names, data.source, data.labels)
+
+
+def test_a_clock_that_steps_during_the_experiment_is_found_in_the_sweeps_it_hit(reference, sim_data):
+    clean, _ = sim_data()
+    for lag, way in ((0.4, 'early'), (-0.15, 'late')):
+        check = check_sync(reference, _stepped(clean, (7, 8, 9), lag))
+        # the median over the sweeps is in step: the run-wide check sees nothing
+        assert abs(check.lag_s) < 0.005 and not check.out_of_step
+        assert check.stepped == (7, 8, 9), (lag, check.per_sweep)
+        text = check.text()
+        names = ', '.join(clean.labels[i] for i in (7, 8, 9))
+        assert f'Sweeps {names} of 10' in text
+        said = re.search(r'positions arrive (\d+) ms (\w+)', text)
+        assert abs(int(said.group(1)) - 1000 * abs(lag)) <= 3 and said.group(2) == way, text
+        assert 'Record them again' in text
+    # one sweep alone is named too
+    one = check_sync(reference, _stepped(clean, (3,), 0.25))
+    assert one.stepped == (3,) and 'looks out of step on its own' in one.text()
+
+
+def test_a_step_shorter_than_its_threshold_or_in_most_sweeps_names_no_sweep(reference, sim_data):
+    clean, _ = sim_data()
+    assert check_sync(reference, _stepped(clean, (7, 8, 9), 0.03)).stepped == ()
+    # most sweeps moved alike: that is the clocks out of step as a whole, said as before
+    whole = check_sync(reference, _stepped(clean, range(1, 10), -0.06))
+    assert whole.stepped == () and whole.out_of_step and 'Sweeps' not in whole.text()
