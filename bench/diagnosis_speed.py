@@ -38,8 +38,14 @@ CASES = [(5, ('weak_fan',)), (103, ('jet_spreading',)), (104, ('jet_spreading', 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--rounds', type=int, default=2)
-    ap.add_argument('--out', default=str(ROOT / 'bench' / 'out' / 'diagnosis_speed.json'))
+    ap.add_argument('--quick', action='store_true',
+                    help='the first case only, on 6 sweeps, one round (seconds; for CI)')
+    ap.add_argument('--out', '--json', dest='out',
+                    default=str(ROOT / 'bench' / 'out' / 'diagnosis_speed.json'))
     args = ap.parse_args(argv)
+    cases, n_sweeps = (CASES[:1], 6) if args.quick else (CASES, 12)
+    if args.quick:
+        args.rounds = 1
     from wind_shaper.app import Setup
     from wind_shaper.model import memo
     from wind_shaper.sim import make_effect
@@ -49,9 +55,9 @@ def main(argv=None) -> int:
     setup = Setup.load()
     reference = setup.load_model(setup.config_dir / 'reference.yaml')
     rows = []
-    for seed, effects in CASES:
+    for seed, effects in cases:
         sim = setup.make_sim(seed=seed, effects=[make_effect(e) for e in effects])
-        data = simulated_sweeps(sim, 12, seed=seed)
+        data = simulated_sweeps(sim, n_sweeps, seed=seed)
         times = {'cache': [], 'none': []}
         results = {}
         for r in range(args.rounds):
@@ -82,7 +88,7 @@ def main(argv=None) -> int:
     Path(args.out).write_text(json.dumps({'rounds': args.rounds, 'cases': rows,
                                           'total_seconds_cache': total_with,
                                           'total_seconds_none': total_without}, indent=1))
-    print('\n| case (12 sweeps) | with cache [s] | without [s] | without / with |')
+    print(f'\n| case ({n_sweeps} sweeps) | with cache [s] | without [s] | without / with |')
     print('|---|---|---|---|')
     for r in rows:
         print(f'| seed {r["seed"]}, {" + ".join(r["effects"])} | {np.median(r["seconds_cache"]):.1f} | '

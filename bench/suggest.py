@@ -97,9 +97,14 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     p.add_argument('--seeds', type=int, default=10)
     p.add_argument('--jobs', type=int, default=2)
+    p.add_argument('--effects', default=','.join(EFFECTS),
+                   help='comma-separated effects of the library (default: all seven)')
     p.add_argument('--json', type=Path, default=ROOT / 'bench' / 'out' / 'suggest.json')
     args = p.parse_args(argv)
-    jobs = [(e, 200 + s) for e in EFFECTS for s in range(args.seeds)]
+    effects = [e for e in args.effects.split(',') if e]
+    if not effects or set(effects) - set(EFFECTS):
+        p.error(f'--effects: choose from {", ".join(EFFECTS)}')
+    jobs = [(e, 200 + s) for e in effects for s in range(args.seeds)]
     t0 = time.time()
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_one, jobs))

@@ -20,23 +20,23 @@ QUICK = {
     'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
                     '--targets', 'uniform'],
     'random_tunnels': ['--quick'],
+    'clocks': ['--quick', '--jobs', '1'],
+    'detection': ['--seeds', '1', '--kinds', 'clean', '--counts', '6', '--jobs', '1'],
+    'diagnosis_speed': ['--quick'],
+    'paper_cases': ['--seeds', '1', '--iterations', '2', '--cases', '1'],
 }
 #: script -> why the smoke test leaves it out
 NOT_QUICK = {
-    'clocks': 'shapes 12 sweeps per seed through the workbench: minutes',
     'commissioning': 'designed sweeps through the node graph (or minutes in-process)',
-    'detection': 'workbench diagnoses of 12 sweeps and more: minutes even with --quick',
-    'diagnosis_speed': 'times full workbench diagnoses: minutes',
     'faults': 'fault injection through the node graph',
     'force_stream': 'the ROS force stream at kHz rates (several processes)',
     'kill_loop': 'kills nodes of the node graph tens of times: minutes',
     'fuzz': 'runs at its quickest in test/fuzz/test_fuzz.py (two targets, two examples)',
     'hosts': 'the node graph across processes',
     'iteration_split': 'runs wind-shaper up (six processes)',
-    'paper_cases': 'five cases of Algorithm 1: a minute even at one seed (and its k=6 column needs '
-                   '6 iterations)',
     'replay_timing': 'replays bags through ROS nodes',
-    'suggest': 'workbench suggestions for 7 effects: minutes',
+    'suggest': ('three diagnoses and the suggestion search: 90 s even at one effect and one seed '
+                '(--seeds 1 --effects weak_fan)'),
 }
 
 
