@@ -41,9 +41,7 @@ def run_one(job) -> dict:
     effects = ([make_effect(effect)] if effect else []) + ([MocapLatency(lag=lag)] if lag else [])
     data = simulated_sweeps(setup.make_sim(seed=seed, effects=effects), 12, seed=seed)
     if step:
-        moved = [repaired(data[[i]], step).sweeps[0] if i in STEPPED_SWEEPS else s
-                 for i, s in enumerate(data.sweeps)]
-        data = type(data)(tuple(moved), data.fan_names, data.source, data.labels)
+        data = repaired(data, step, only=STEPPED_SWEEPS)
     check = check_sync(reference, data)
     return {'effect': effect or '(none)', 'lag_s': lag, 'step_s': step, 'seed': seed,
             'measured_s': round(check.lag_s, 5), 'out_of_step': check.out_of_step,

@@ -113,17 +113,21 @@ class SyncCheck:
                 f'{self.lag_s:.3f}` (seconds).')
 
 
-def repaired(sweeps: SweepSet, lag_s: float) -> SweepSet:
+def repaired(sweeps: SweepSet, lag_s: float, only=None) -> SweepSet:
     """``sweeps`` with each force paired with the plate's position ``lag_s`` [s] later (held at
     a sweep's end): what motion capture that arrives ``lag_s`` late should have recorded (a
-    negative lag for positions that arrive early). Forces, times and commands are unchanged."""
+    negative lag for positions that arrive early). Forces, times and commands are unchanged.
+    ``only``: the places (0-based) of the sweeps to re-pair (default: all), e.g. those a clock
+    step hit."""
     lag = float(lag_s)
     if not (np.isfinite(lag) and abs(lag) <= MAX_REPAIR_S):
         raise ConfigError(f'a position lag must be a number of seconds within +-{MAX_REPAIR_S:g} (the '
                           f'diagnosis measures it: "the positions arrive 40 ms late" is 0.040); got {lag_s!r}')
     if lag == 0:
         return sweeps
-    moved = tuple(type(s)(s.positions_at(s.times + lag), s.forces, s.times, s.pwm) for s in sweeps.sweeps)
+    picked = set(range(len(sweeps.sweeps)) if only is None else only)
+    moved = tuple(type(s)(s.positions_at(s.times + lag), s.forces, s.times, s.pwm) if i in picked else s
+                  for i, s in enumerate(sweeps.sweeps))
     source = f'{sweeps.source} (positions re-paired {1000 * lag:+.0f} ms)'.strip()
     return type(sweeps)(moved, sweeps.fan_names, source, sweeps.labels)
 

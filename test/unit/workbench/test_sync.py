@@ -92,17 +92,10 @@ def test_every_model_command_takes_the_position_lag(wb_setup, reference):
     assert check_sync(reference, _data(wb_setup, args)).lag_s == pytest.approx(0.06, abs=0.004)
 
 
-def _stepped(data, places, lag):
-    """``data`` with the sweeps at ``places`` re-paired ``lag`` [s] (a clock that stepped while
-    they were recorded)."""
-    moved = [repaired(data[[i]], lag).sweeps[0] if i in places else s for i, s in enumerate(data.sweeps)]
-    return type(data)(tuple(moved), data.fan_names, data.source, data.labels)
-
-
 def test_a_clock_that_steps_during_the_experiment_is_found_in_the_sweeps_it_hit(reference, sim_data):
     clean, _ = sim_data()
     for lag, way in ((0.4, 'early'), (-0.15, 'late')):
-        check = check_sync(reference, _stepped(clean, (7, 8, 9), lag))
+        check = check_sync(reference, repaired(clean, lag, only=(7, 8, 9)))
         # the median over the sweeps is in step: the run-wide check sees nothing
         assert abs(check.lag_s) < 0.005 and not check.out_of_step
         assert check.stepped == (7, 8, 9), (lag, check.per_sweep)
@@ -113,13 +106,13 @@ def test_a_clock_that_steps_during_the_experiment_is_found_in_the_sweeps_it_hit(
         assert abs(int(said.group(1)) - 1000 * abs(lag)) <= 3 and said.group(2) == way, text
         assert 'Record them again' in text
     # one sweep alone is named too
-    one = check_sync(reference, _stepped(clean, (3,), 0.25))
+    one = check_sync(reference, repaired(clean, 0.25, only=(3,)))
     assert one.stepped == (3,) and 'looks out of step on its own' in one.text()
 
 
 def test_a_step_shorter_than_its_threshold_or_in_most_sweeps_names_no_sweep(reference, sim_data):
     clean, _ = sim_data()
-    assert check_sync(reference, _stepped(clean, (7, 8, 9), 0.03)).stepped == ()
+    assert check_sync(reference, repaired(clean, 0.03, only=(7, 8, 9))).stepped == ()
     # most sweeps moved alike: that is the clocks out of step as a whole, said as before
-    whole = check_sync(reference, _stepped(clean, range(1, 10), -0.06))
+    whole = check_sync(reference, repaired(clean, -0.06, only=range(1, 10)))
     assert whole.stepped == () and whole.out_of_step and 'Sweeps' not in whole.text()
