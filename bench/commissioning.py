@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/commissioning.py              # designed sweeps through the node graph; ~10 min
     .venv/bin/python bench/commissioning.py --in-process # everything on the in-process simulator; ~2 min
+    .venv/bin/python bench/commissioning.py --quick      # lhs:3 of 3 s sweeps through the graph, one
+                                                         # shaping seed: checks the script runs
 
 Arms:
 
@@ -88,7 +90,7 @@ def graph_designs(setup, counts, sweep_s: float, log, held: bool = False) -> dic
     ``held`` also the guided held-plate batch (`calibrate --held --auto`): {'held': (model,
     wall_s, points)}."""
     root = Path(tempfile.mkdtemp(prefix='ws-commission-'))
-    env = dict(os.environ, ROS_DOMAIN_ID=str(60 + os.getpid() % 30),
+    env = dict(os.environ, ROS_DOMAIN_ID=os.environ.get('ROS_DOMAIN_ID') or str(60 + os.getpid() % 30),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     cli = [sys.executable, '-m', 'wind_shaper.cli.main']
     up = subprocess.Popen([*cli, 'up', '--sim', '--set', 'coordinator.settle_s=1.0'], cwd=root,
@@ -143,8 +145,16 @@ def main(argv=None) -> int:
     p.add_argument('--held-graph', action='store_true',
                    help='also run the guided held-plate batch through the graph (calibrate --held '
                         '--auto, the simulated rig placing the plate; ~10 min more)')
+    p.add_argument('--counts', type=int, nargs='+', default=list(COUNTS),
+                   help=f'designed sweep counts N of lhs:N (default {" ".join(map(str, COUNTS))})')
+    p.add_argument('--quick', action='store_true',
+                   help='--seeds 1 --counts 3 --sweep-s 3: checks the script runs (about a minute)')
     p.add_argument('--json', type=Path, default=ROOT / 'bench' / 'out' / 'commissioning.json')
     args = p.parse_args(argv)
+    if args.quick:
+        args.seeds, args.counts, args.sweep_s = 1, [3], 3.0
+    if min(args.counts) < 3:
+        p.error('--counts: each design needs at least 3 sweeps (fans off first and last)')
 
     def log(text):
         print(text, file=sys.stderr, flush=True)
@@ -171,11 +181,11 @@ def main(argv=None) -> int:
 
     if args.in_process:
         designs = {}
-        for n in COUNTS:
+        for n in args.counts:
             d = make_design(f'lhs:{n}', fans, b.u_min, b.u_max, seed=0)
             designs[n] = (from_sim(setup.make_sim(seed=20 + n), d.commands, n_samples=1000), None)
     else:
-        designs = graph_designs(setup, COUNTS, args.sweep_s, log, held=args.held_graph)
+        designs = graph_designs(setup, args.counts, args.sweep_s, log, held=args.held_graph)
     if 'held' in designs:
         model, wall, points = designs.pop('held')
         rows.append({'arm': f'held-plate batch through the graph ({points} points)',

@@ -51,12 +51,13 @@ def _env(domain: int) -> dict:
 
 # ------------------------------------------------------------------------- child: Net F/T server
 def server_main(rate: float) -> int:
-    """The simulated Net F/T in a process of its own (Fx = record index); prints its port."""
+    """The simulated Net F/T in a process of its own (Fx = Fz = record index: the subscriber
+    counts Fz of the force blocks); prints its port."""
     from wind_shaper.sim import SimNetFtServer
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
-    with SimNetFtServer(lambda t: (round(t * rate), 0.0, 0.0, 0.0, 0.0, 0.0), rate_hz=rate,
+    with SimNetFtServer(lambda t: (round(t * rate), 0.0, round(t * rate), 0.0, 0.0, 0.0), rate_hz=rate,
                         counts_per_force=1.0, counts_per_torque=1.0, max_batch=1000) as server:
         print(f'PORT {server.port}', flush=True)
         while not stop:
@@ -93,6 +94,10 @@ def stream(hosts, rate: float, seconds: float, subscriber_host: int, domain: int
         for p in reversed(procs):
             _stop(p)
     result = result or {'error': 'the subscriber printed no result'}
+    if 'error' not in result and result['messages'] > 1 and result['last'] == result['first']:
+        # every sample carried the same index: the count below would read "lost 0 of 1"
+        result = {'error': f"{result['messages']} samples all carried record index {result['first']}: "
+                           'the sensor does not number its records in Fz'}
     if 'error' not in result:
         sent = result['last'] - result['first'] + 1
         result.update(sent=sent, lost=sent - result['distinct'],

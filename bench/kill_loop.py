@@ -134,7 +134,8 @@ def main(argv=None) -> int:
     ap.add_argument('--nodes', default='field_estimator,mocap_relay',
                     help='nodes killed in turn (comma-separated)')
     ap.add_argument('--load', type=int, default=0, help='busy processes run beside the graph')
-    ap.add_argument('--domain', default=str(os.getpid() % 90 + 10), help='ROS_DOMAIN_ID')
+    ap.add_argument('--domain', default=os.environ.get('ROS_DOMAIN_ID') or str(os.getpid() % 90 + 10),
+                    help='ROS_DOMAIN_ID (default: the environment\'s, else one from the process id)')
     ap.add_argument('--deaf-after', type=float, default=30.0,
                     help="the graph's --deaf-after [s] (0: off); a cycle that failed then counts "
                          "whether the graph answered again within that time + 30 s")

@@ -1,6 +1,7 @@
 """How closely `wind-shaper replay` keeps a bag's timing: publish lateness and arrival error.
 
     .venv/bin/python bench/replay_timing.py            # rates 1 and 4, 3 replays each; ~30 s
+    .venv/bin/python bench/replay_timing.py --quick    # one short replay at rate 4 (seconds)
 
 A sweep bag (1.5 s of sweep: force 1 kHz, plate and mocap pose 100 Hz, commands, status; about
 2.3 s in all) is replayed by the Player to a raw subscriber in the same process (events
@@ -14,6 +15,7 @@ measurement, not a test.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import threading
@@ -29,7 +31,15 @@ sys.path.insert(0, str(ROOT))
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     p.add_argument('--repeats', type=int, default=3)
+    p.add_argument('--rates', type=float, nargs='+', default=[1.0, 4.0],
+                   help='replay rates (1: real time)')
+    p.add_argument('--samples', type=int, default=150, help='plate samples of the sweep (100 Hz)')
+    p.add_argument('--quick', action='store_true',
+                   help='one replay of a 0.3 s sweep at rate 4: checks the script runs')
+    p.add_argument('--json', type=Path, default=None, help='also write the figures here')
     args = p.parse_args(argv)
+    if args.quick:
+        args.repeats, args.rates, args.samples = 1, [4.0], 30
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -42,7 +52,7 @@ def main(argv=None) -> int:
     geometry = TunnelGeometry.paper_rig()
     sim = SimulatedTunnel(geometry, seed=3, sample_rate_hz=100.0)
     sim.apply(np.full(geometry.fans.n_fans, 0.5))
-    bag = write_sweep_bag(Path(tempfile.mkdtemp()) / 'sweep', [sim.sweep(150)], settle_s=0.2,
+    bag = write_sweep_bag(Path(tempfile.mkdtemp()) / 'sweep', [sim.sweep(args.samples)], settle_s=0.2,
                           idle_streams=False)
     with BagReader(bag) as reader:
         topics = reader.topics
@@ -52,8 +62,9 @@ def main(argv=None) -> int:
     rclpy.init(context=context)
     print('| rate | replays | publish late p50 [ms] | p90 [ms] | worst [ms] | arrival error p50 [ms] | p90 [ms] |')
     print('|---|---|---|---|---|---|---|')
+    rows = []
     try:
-        for rate in (1.0, 4.0):
+        for rate in args.rates:
             late, err = [], []
             for _ in range(args.repeats):
                 node = rclpy.create_node('replay_bench_listener', context=context)
@@ -91,8 +102,18 @@ def main(argv=None) -> int:
             e = (f'{1e3 * np.median(err):.2f} | {1e3 * np.percentile(err, 90):.2f}' if err else '- | -')
             print(f'| {rate:g} | {args.repeats} | {np.median(late_ms):.1f} | {np.percentile(late_ms, 90):.1f} | '
                   f'{np.max(late_ms):.1f} | {e} |')
+            rows.append({'rate': rate, 'replays': args.repeats,
+                         'late_ms': {'p50': float(np.median(late_ms)),
+                                     'p90': float(np.percentile(late_ms, 90)),
+                                     'max': float(np.max(late_ms))},
+                         'arrival_error_ms': ({'p50': 1e3 * float(np.median(err)),
+                                               'p90': 1e3 * float(np.percentile(err, 90))}
+                                              if err else None)})
     finally:
         context.try_shutdown()
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({'samples': args.samples, 'rows': rows}, indent=1) + '\n')
     return 0
 
 

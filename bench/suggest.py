@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/suggest.py               # 7 effects x 10 seeds; ~10 min on 2 cores
     .venv/bin/python bench/suggest.py --seeds 3
+    .venv/bin/python bench/suggest.py --quick      # one effect, one seed, short sweeps: checks it runs
 
 For each effect of the library (switched on alone in the simulated tunnel, at its default
 magnitude) and seed: 6 designed sweeps (``simulated_sweeps``: fans off first and last, a Latin
@@ -49,7 +50,7 @@ def _judge(d, reference, setup, effect):
 
 
 def run_one(job) -> dict:
-    effect_name, seed = job
+    effect_name, seed, n_samples, pool = job
     from wind_shaper.app import Setup
     from wind_shaper.experiment import design_commands
     from wind_shaper.sim import make_effect
@@ -61,17 +62,17 @@ def run_one(job) -> dict:
     reference = setup.load_model(setup.config_dir / 'reference.yaml')
     effect = make_effect(effect_name)
     sim = setup.make_sim(seed=seed, effects=[effect])
-    first = simulated_sweeps(sim, FIRST, seed=seed, high=HIGH)
+    first = simulated_sweeps(sim, FIRST, seed=seed, high=HIGH, n_samples=n_samples)
     d0 = Diagnosis().fit(reference, first, setup.geometry)
     t0 = time.process_time()
-    s = suggest_sweeps(d0, MORE, 0.0, HIGH, seed=seed)
+    s = suggest_sweeps(d0, MORE, 0.0, HIGH, seed=seed, pool=pool)
     suggest_cpu = time.process_time() - t0
     fans = setup.geometry.fans
     random_U = design_commands(fans.n_fans, MORE, high=HIGH, seed=seed + 1000, enabled=fans.enabled)
     out = {'effect': effect_name, 'seed': seed, 'goal': s.goal, 'suggest_cpu_s': round(suggest_cpu, 2),
            'first': _judge(d0, reference, setup, effect)}
     for arm, U in (('suggested', s.design.commands), ('random', random_U)):
-        more = from_sim(sim, U)
+        more = from_sim(sim, U, n_samples=n_samples)
         d = Diagnosis().fit(reference, first + more, setup.geometry)
         out[arm] = _judge(d, reference, setup, effect)
     return out
@@ -99,12 +100,19 @@ def main(argv=None) -> int:
     p.add_argument('--jobs', type=int, default=2)
     p.add_argument('--effects', default=','.join(EFFECTS),
                    help='comma-separated effects of the library (default: all seven)')
+    p.add_argument('--samples', type=int, default=1000, help='plate samples per sweep')
+    p.add_argument('--pool', type=int, default=400,
+                   help="candidate commands the suggestion chooses from (suggest_sweeps' pool)")
+    p.add_argument('--quick', action='store_true',
+                   help='weak_fan, one seed, 600 samples per sweep, a pool of 50: checks the script runs')
     p.add_argument('--json', type=Path, default=ROOT / 'bench' / 'out' / 'suggest.json')
     args = p.parse_args(argv)
+    if args.quick:
+        args.seeds, args.effects, args.samples, args.pool, args.jobs = 1, 'weak_fan', 600, 50, 1
     effects = [e for e in args.effects.split(',') if e]
     if not effects or set(effects) - set(EFFECTS):
         p.error(f'--effects: choose from {", ".join(EFFECTS)}')
-    jobs = [(e, 200 + s) for e in effects for s in range(args.seeds)]
+    jobs = [(e, 200 + s, args.samples, args.pool) for e in effects for s in range(args.seeds)]
     t0 = time.time()
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_one, jobs))
@@ -116,7 +124,7 @@ def main(argv=None) -> int:
           f'{ {g: sum(r["goal"] == g for r in rows) for g in ("separate", "shrink", "explore")} }; '
           f'{len(rows)} runs in {time.time() - t0:.0f} s')
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({'seeds': args.seeds, 'rows': rows, 'table': text}, indent=1))
+    args.json.write_text(json.dumps({'seeds': args.seeds, 'samples': args.samples, 'pool': args.pool, 'rows': rows, 'table': text}, indent=1))
     print(f'wrote {args.json}')
     return 0
 

@@ -1,7 +1,8 @@
 """Every benchmark script runs end to end at its quickest settings (seconds each), so a change
 that breaks one (a swapped-in function that returns the wrong tuple, a renamed setting) fails
-here, not when someone next runs it for a table. Scripts that need the ROS node graph or minutes
-even at their smallest are listed with the reason; a new script must join one of the two lists."""
+here, not when someone next runs it for a table. Scripts that start the node graph run in the
+graph tier (test/graph/test_bench_smoke.py); a new script must join one of the lists of
+test/bench_module.py."""
 import json
 import sys
 from pathlib import Path
@@ -9,46 +10,21 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench_module import BENCH, load_bench  # noqa: E402
-
-#: script -> its quickest arguments (the results file is added: --json in tmp_path)
-QUICK = {
-    'coverage': ['--effects', 'background_draft', '--sizes', '1', '--seeds', '1', '--clean', '1',
-                 '--sweeps', '6', '--samples', '300', '--jobs', '1'],
-    'field_std': ['--quick', '--estimator', 'long_run_span_s=0'],
-    'scale': ['--quick'],
-    'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
-                    '--targets', 'uniform'],
-    'random_tunnels': ['--quick'],
-    'clocks': ['--quick', '--jobs', '1'],
-    'detection': ['--seeds', '1', '--kinds', 'clean', '--counts', '6', '--jobs', '1'],
-    'diagnosis_speed': ['--quick'],
-    'paper_cases': ['--seeds', '1', '--iterations', '2', '--cases', '1'],
-}
-#: script -> why the smoke test leaves it out
-NOT_QUICK = {
-    'commissioning': 'designed sweeps through the node graph (or minutes in-process)',
-    'faults': 'fault injection through the node graph',
-    'force_stream': 'the ROS force stream at kHz rates (several processes)',
-    'kill_loop': 'kills nodes of the node graph tens of times: minutes',
-    'fuzz': 'runs at its quickest in test/fuzz/test_fuzz.py (two targets, two examples)',
-    'hosts': 'the node graph across processes',
-    'iteration_split': 'runs wind-shaper up (six processes)',
-    'replay_timing': 'replays bags through ROS nodes',
-    'suggest': ('three diagnoses and the suggestion search: 90 s even at one effect and one seed '
-                '(--seeds 1 --effects weak_fan)'),
-}
+from bench_module import BENCH, ELSEWHERE, GRAPH_QUICK, QUICK, load_bench  # noqa: E402
 
 
-def test_every_bench_script_is_listed():
+def test_every_bench_script_is_listed_once():
     scripts = {p.stem for p in BENCH.glob('*.py')}
-    assert scripts == set(QUICK) | set(NOT_QUICK), (
-        f'new or removed bench scripts: {sorted(scripts ^ (set(QUICK) | set(NOT_QUICK)))}; add each '
-        f'to QUICK (with its quickest arguments) or NOT_QUICK (with the reason)')
+    lists = (QUICK, GRAPH_QUICK, ELSEWHERE)
+    listed = [name for names in lists for name in names]
+    assert scripts == set(listed) and len(listed) == len(set(listed)), (
+        f'new, removed or twice-listed bench scripts: {sorted(scripts ^ set(listed))}; add each '
+        f'to one of QUICK, GRAPH_QUICK (with its quickest arguments) or ELSEWHERE (with its test) '
+        f'in test/bench_module.py')
 
 
 @pytest.mark.parametrize('name', sorted(QUICK))
-def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch):
+def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch, ros_env):
     module = load_bench(name)
     monkeypatch.chdir(tmp_path)
     out = tmp_path / f'{name}.json'
@@ -58,7 +34,7 @@ def test_bench_script_runs_at_its_quickest(name, tmp_path, monkeypatch):
         cache = tmp_path / 'zeta.json'
         cache.write_text(json.dumps({'nominal, uniform': [0.08, [0.5] * 7]}))
         args += ['--zeta-cache', str(cache)]
-    module.main(args)
+    assert not module.main(args), f'bench/{name}.py {" ".join(args)} exited with an error'
     assert out.is_file() and json.loads(out.read_text())
 
 
