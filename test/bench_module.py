@@ -44,7 +44,7 @@ QUICK = {
     # the fault table from one file's fault tests (the graph's own run in the graph tier)
     'faults': ['test/unit/protocols/test_netft_codec.py'],
 }
-#: script -> its quickest arguments, run by test/graph/test_bench_smoke.py: these start ROS
+#: script -> its quickest arguments, run by test/graph/test_graph_benches.py: these start ROS
 #: processes, the node graph or network namespaces
 GRAPH_QUICK = {
     'force_stream': ['--rates', '1000', '--seconds', '1.5'],

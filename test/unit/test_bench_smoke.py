@@ -1,7 +1,7 @@
 """Every benchmark script runs end to end at its quickest settings (seconds each), so a change
 that breaks one (a swapped-in function that returns the wrong tuple, a renamed setting) fails
 here, not when someone next runs it for a table. Scripts that start the node graph run in the
-graph tier (test/graph/test_bench_smoke.py); a new script must join one of the lists of
+graph tier (test/graph/test_graph_benches.py); a new script must join one of the lists of
 test/bench_module.py."""
 import json
 import sys
