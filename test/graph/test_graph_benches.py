@@ -3,12 +3,11 @@ its quickest settings (test/bench_module.py's GRAPH_QUICK), so that none rots be
 that fill the benchmarks page. Each also checks that its figures are figures: a stream that
 counts samples counted more than one, an iteration that was split has its phases."""
 import json
-import os
-import shutil
 import sys
 from pathlib import Path
 
 import pytest
+from netns_required import require_netns
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_module import GRAPH_QUICK, load_bench  # noqa: E402
@@ -53,11 +52,7 @@ def test_kill_loop_runs_at_its_quickest(tmp_path, monkeypatch, ros_env):
 
 
 def test_hosts_runs_at_its_quickest(tmp_path, monkeypatch):
-    if os.geteuid() != 0 or shutil.which('ip') is None:
-        if os.environ.get('WIND_SHAPER_NO_NETNS') == '1':
-            pytest.skip('WIND_SHAPER_NO_NETNS=1: the multi-host bench is left out on this machine')
-        pytest.fail('bench/hosts.py needs root and iproute2 (ip netns); run the suite as root, or '
-                    'set WIND_SHAPER_NO_NETNS=1 to leave it out')
+    require_netns('bench/hosts.py')
     r = run('hosts', tmp_path, monkeypatch)
     for row in r['stream']:
         assert 'error' not in row and row['sent'] > 100, row

@@ -8,13 +8,13 @@ cause, the samples received are kept in the journal, and once the link is back t
 iteration runs. Every namespace and link the module makes is removed, also when it fails."""
 import os
 import re
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from netns_required import require_netns
 from up_driver import UP_LINE, Up
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / 'tools'))
@@ -31,13 +31,7 @@ SAFE_LINE = re.compile(r'\[(\d+\.\d+)\] \[[\w.]*fan_output\]: fans safe \((watch
 
 @pytest.fixture(scope='module')
 def hosts():
-    if os.geteuid() != 0 or shutil.which('ip') is None:
-        # CI runs as root: a missing requirement there is a failure, never a quiet skip; a
-        # developer without root says so explicitly
-        if os.environ.get('WIND_SHAPER_NO_NETNS') == '1':
-            pytest.skip('WIND_SHAPER_NO_NETNS=1: the multi-host test is left out on this machine')
-        pytest.fail('the multi-host test needs root and iproute2 (ip netns) to make its hosts; '
-                    'run the suite as root, or set WIND_SHAPER_NO_NETNS=1 to leave this test out')
+    require_netns('the multi-host test')
     h = Hosts(TAG, f'10.77.{os.getpid() % 200 + 20}.')
     try:
         h.create()
