@@ -52,7 +52,8 @@ def main(argv=None) -> int:
     geometry = TunnelGeometry.paper_rig()
     sim = SimulatedTunnel(geometry, seed=3, sample_rate_hz=100.0)
     sim.apply(np.full(geometry.fans.n_fans, 0.5))
-    bag = write_sweep_bag(Path(tempfile.mkdtemp()) / 'sweep', [sim.sweep(args.samples)], settle_s=0.2,
+    workdir = tempfile.TemporaryDirectory(prefix='replay_timing_')   # removed on return
+    bag = write_sweep_bag(Path(workdir.name) / 'sweep', [sim.sweep(args.samples)], settle_s=0.2,
                           idle_streams=False)
     with BagReader(bag) as reader:
         topics = reader.topics
@@ -111,6 +112,7 @@ def main(argv=None) -> int:
                                               if err else None)})
     finally:
         context.try_shutdown()
+        workdir.cleanup()
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({'samples': args.samples, 'rows': rows}, indent=1) + '\n')
