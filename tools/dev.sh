@@ -281,29 +281,16 @@ cmd_test() {
             | grep -v -x -F -f <(printf '%s\n' "${workbench_in_unit[@]}"))
         mapfile -t rest < <(find test -mindepth 1 -maxdepth 1 \( -type d ! -name graph ! -name unit \
             ! -name __pycache__ -o -type f -name 'test_*.py' \) | sort)
-        # The graph over three hosts (its test and its benchmark, about 2 min of plate time in
-        # network namespaces of their own) runs first in the unit lane, not niced: the graph lane
-        # ended last by 1.5 min (821 s beside 525 s for the unit lane in one fresh clone). Their
-        # traffic stays on the namespaces' links, apart from the loopback graph's.
-        local netns_tests=(test/graph/test_hosts.py
-                           test/graph/test_graph_benches.py::test_hosts_runs_at_its_quickest)
         mkdir -p "$LOGS"
-        log "lane 1: test/graph but ${netns_tests[*]} (output: $graph_log); lane 2: ${netns_tests[*]}, then test/unit but ${moved[*]} and of test/unit/workbench only ${workbench_in_unit[*]}, niced (output: $unit_log); lane 3: test/unit/workbench but ${moved_workbench[*]} ${workbench_in_unit[*]}, niced (output: $bench_log); lane 4: the rest; the first three are shown when they end"
-        WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q --durations=15 test/graph \
-            --ignore=test/graph/test_hosts.py --deselect "${netns_tests[1]}" >"$graph_log" 2>&1 &
+        log "lane 1: test/graph (output: $graph_log); lane 2: test/unit but ${moved[*]} and of test/unit/workbench only ${workbench_in_unit[*]}, niced (output: $unit_log); lane 3: test/unit/workbench but ${moved_workbench[*]} ${workbench_in_unit[*]}, niced (output: $bench_log); lane 4: the rest; the first three are shown when they end"
+        WIND_SHAPER_TEST_LANE=0 "$PY" -m pytest -q --durations=15 test/graph >"$graph_log" 2>&1 &
         local graph_pid=$!
         # One BLAS thread: the graph's processes need the cores more than numpy does. The niced
         # lanes run only on what the others leave, so a test of 15 s CPU took 120 s there; their
         # per-test limit, a guard against hangs, is 480 s instead of the 120 s of pytest.ini.
-        (
-            netns_rc=0 tier_rc=0
-            WIND_SHAPER_TEST_LANE=1 "$PY" -m pytest -q --durations=5 "${netns_tests[@]}" || netns_rc=$?
-            WIND_SHAPER_TEST_LANE=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
-                nice -n 10 "$PY" -m pytest -q --durations=15 --timeout=480 test/unit \
-                "${moved[@]/#/--ignore=}" "${workbench_rest[@]/#/--ignore=}" || tier_rc=$?
-            ((netns_rc != 0)) && exit "$netns_rc"
-            exit "$tier_rc"
-        ) >"$unit_log" 2>&1 &
+        WIND_SHAPER_TEST_LANE=1 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+            nice -n 10 "$PY" -m pytest -q --durations=15 --timeout=480 test/unit \
+            "${moved[@]/#/--ignore=}" "${workbench_rest[@]/#/--ignore=}" >"$unit_log" 2>&1 &
         local unit_pid=$!
         WIND_SHAPER_TEST_LANE=3 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
             nice -n 10 "$PY" -m pytest -q --durations=15 --timeout=480 test/unit/workbench \
@@ -316,11 +303,11 @@ cmd_test() {
         wait "$bench_pid" || bench_rc=$?
         wait "$graph_pid" || graph_rc=$?
         trap - EXIT
-        log "lane 2 (${netns_tests[*]}, then test/unit but ${moved[*]} and of test/unit/workbench only ${workbench_in_unit[*]}):"
+        log "lane 2 (test/unit but ${moved[*]} and of test/unit/workbench only ${workbench_in_unit[*]}):"
         cat "$unit_log"
         log "lane 3 (test/unit/workbench but ${moved_workbench[*]} ${workbench_in_unit[*]}):"
         cat "$bench_log"
-        log "lane 1 (test/graph but ${netns_tests[*]}):"
+        log "lane 1 (test/graph):"
         cat "$graph_log"
         log "lane 1 exit code $graph_rc, lane 2 exit code $unit_rc, lane 3 exit code $bench_rc, lane 4 exit code $rc"
         if ((rc == 0 || rc == 5)) && ((bench_rc != 0)); then rc=$bench_rc; fi
