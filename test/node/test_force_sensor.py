@@ -250,7 +250,10 @@ def test_diagnostics_rate_and_no_data(harness):
         values = harness.fresh_diag()
         values = harness.fresh_diag()        # a whole period of streaming
         assert values['_level'] == b'\x00', values
-        assert 300 <= float(values['rate_hz']) <= 460
+        # samples published per second over one diagnostics period: on a loaded machine a
+        # backlog held in the socket and published within the period lifts it above the
+        # sensor's rate (504 Hz of a 400 Hz stream seen in a fresh clone's run)
+        assert 300 <= float(values['rate_hz']) <= 600
     # the server is gone: no data
     assert wait_for(lambda: harness.fresh_diag()['_level'] == b'\x02', 4.0)
 
