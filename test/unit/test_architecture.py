@@ -168,3 +168,18 @@ def test_no_logging_line_picks_its_severity_by_a_condition():
              for n, line in enumerate(path.read_text().splitlines(), 1)
              if _SEVERITY_BY_CONDITION.search(line)]
     assert not found, f'use wind_shaper.ros.log.log_note instead: {found}'
+
+
+def test_the_nodes_that_relay_messages_start_without_scipy():
+    """fan_output, force_sensor and mocap_relay never fit a GP or solve a model: importing
+    SciPy with them cost each start about 0.8 s of CPU (bench/node_start.py), paid again at
+    every restart the supervisor makes. A module-level SciPy import on their path fails this."""
+    import subprocess
+    import sys
+    code = ('import sys\n'
+            'import wind_shaper.nodes.fan_output, wind_shaper.nodes.force_sensor, '
+            'wind_shaper.nodes.mocap_relay\n'
+            'print(sorted({m.split(".")[0] for m in sys.modules} & {"scipy", "sklearn"}))\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == '[]', out.stdout

@@ -11,7 +11,6 @@ from dataclasses import dataclass, field, replace
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .errors import ConfigError
 from .limits import DEFAULT_LIMITS, excerpt
@@ -340,6 +339,7 @@ def neighbour_pairs(hubs: np.ndarray, reach: float) -> np.ndarray:
     hubs = np.asarray(hubs, dtype=float)
     if len(hubs) < 2:
         return np.zeros((0, 2), dtype=int)
+    from scipy.spatial import cKDTree   # here: the nodes that read the geometry skip SciPy's load
     tree = cKDTree(hubs)
     dist, _ = tree.query(hubs, k=2)
     spacing = float(np.min(dist[:, 1]))

@@ -1,13 +1,17 @@
 """numpy <-> wind_shaper_msgs conversions (no business logic here)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from builtin_interfaces.msg import Time
 from wind_shaper_msgs.msg import FanCommand, FieldEstimate, SweepSamples
 
-from ..estimation import FieldEstimate as CoreEstimate
 from ..core.tunnel import Sweep
 from . import names
+
+if TYPE_CHECKING:   # the GP's module loads SciPy: nodes that only convert messages skip it
+    from ..estimation import FieldEstimate as CoreEstimate
 
 
 def stamp_to_seconds(stamp: Time) -> float:
