@@ -41,6 +41,7 @@ QUICK = {
     'paper_cases': ['--seeds', '1', '--iterations', '2', '--cases', '1'],
     'suggest': ['--quick'],
     'replay_timing': ['--quick'],
+    # one node process at a time, beside the node tests of the same lane
     'node_start': ['--quick'],
     # the fault table from one file's fault tests (the graph's own run in the graph tier)
     'faults': ['test/unit/protocols/test_netft_codec.py'],
