@@ -172,7 +172,7 @@ def test_no_logging_line_picks_its_severity_by_a_condition():
 
 def test_the_nodes_that_relay_messages_start_without_scipy():
     """fan_output, force_sensor and mocap_relay never fit a GP or solve a model: importing
-    SciPy with them cost each start about 0.8 s of CPU (bench/node_start.py), paid again at
+    SciPy with them cost each start 0.4-0.6 s of CPU (bench/node_start.py), paid again at
     every restart the supervisor makes. A module-level SciPy import on their path fails this."""
     import subprocess
     import sys

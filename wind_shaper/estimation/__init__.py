@@ -13,7 +13,7 @@ import importlib
 
 # Each name is imported from its module when first used: a node that needs the mocap relay's
 # frames or a field message's type does not load SciPy's spatial and optimisation packages with
-# the GP (about 0.6 s of CPU at every start of the node).
+# the GP (0.4-0.6 s of CPU at every start of such a node, bench/node_start.py).
 _MODULE_OF = {
     **dict.fromkeys(('Coverage', 'coverage_share'), 'coverage'),
     **dict.fromkeys(('MIN_OVERLAP', 'SampleBuffer', 'align_sweep', 'pose_period'), 'align'),
