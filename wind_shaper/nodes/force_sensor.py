@@ -1,8 +1,9 @@
 """force_sensor: ATI Net F/T RDT stream -> geometry_msgs/WrenchStamped (a lifecycle node).
 
 ``wind_shaper.io.NetFtClient`` reads the sensor's UDP stream on its own thread; every good
-sample is published from that thread on ``/wind_shaper/force`` (QoS STREAM), stamped at
-reception with the node clock, in ``frame_id`` [N, N m]. The same samples also go out in blocks
+sample is published from that thread on ``/wind_shaper/force`` (QoS STREAM), stamped in the
+node clock with its sample time (from its sequence number, ``sample_rate_hz``; 0: at reception),
+in ``frame_id`` [N, N m]. The same samples also go out in blocks
 of ``block_samples`` on ``/wind_shaper/force/block`` (wind_shaper_msgs/ForceBlock: stamps and
 the vertical force), at the latest ``block_max_s`` after a block's first sample (when the
 stream stops, within half a second): the field estimator takes those, tens of messages a
@@ -215,8 +216,8 @@ class ForceSensorNode(LifecycleNode):
             if self._clock_restart:
                 self._clock_restart = False
                 self._sample_clock.reset()
-            stamp = seconds_to_stamp(
-                self._sample_clock.stamp(sample.rdt_sequence, now.nanoseconds * 1e-9))
+            stamp = seconds_to_stamp(self._sample_clock.stamp_in(
+                sample.rdt_sequence, time.monotonic(), now.nanoseconds * 1e-9))
         (fx, fy, fz), (tx, ty, tz) = sample.force, sample.torque
         s = self._sign
         # The wrench is built and sent only while someone subscribes (a bag, the lab's stack):

@@ -193,7 +193,8 @@ class SampleClock:
     more than ``max_backstep_s``, or a record would be stamped more than ``max_lag_s`` before
     it arrived: no host lags that long, so the numbers no longer belong to the anchored stream,
     and keeping the anchor would stamp the new stream seconds in the past. Times are in the
-    clock of ``arrival`` [s].
+    clock of ``arrival`` [s]; ``stamp_in`` keeps the anchor in a steady clock and stamps in
+    another (a node's ROS clock), which may be stepped.
     """
 
     def __init__(self, rate_hz: float, max_drift: float = 200e-6, restart_s: float = 10.0,
@@ -237,3 +238,16 @@ class SampleClock:
             self._offset = min(lag_free, self._offset + rise)
         self._last_arrival = arrival
         return self._offset + self._n / self.rate_hz
+
+    def stamp_in(self, rdt_sequence: int, arrival_steady: float, clock_at_arrival: float) -> float:
+        """Sample time of record ``rdt_sequence`` in the clock that read ``clock_at_arrival`` [s]
+        (the ROS clock the other streams are stamped in) at the moment the steady clock (e.g.
+        ``time.monotonic()``) read ``arrival_steady`` [s].
+
+        The anchor is kept in the steady clock, which no clock step moves, and each stamp is
+        moved into the other clock by the two clocks' difference at its arrival. A lab host's
+        system clock can be stepped (NTP or chrony correcting it, a virtual machine resumed):
+        anchored in that clock, a step forward left every later stamp behind by the step until
+        the drift allowance caught up (0.2 s took 17 min at 200 ppm), so the force no longer
+        paired with the plate's pose, whose stamps follow the step."""
+        return self.stamp(rdt_sequence, arrival_steady) + (clock_at_arrival - arrival_steady)

@@ -51,3 +51,30 @@ def test_sample_clock_keeps_its_anchor_through_a_one_second_host_stall():
         clock.stamp(n, 100.0 + n / 1000.0 + 0.001)
     late = clock.stamp(3000, 104.0)       # true time 103.0: a second in the socket buffer
     assert abs(late - 103.0) < 0.002 and clock.restarts == 0
+
+
+def test_stamps_follow_a_step_of_the_system_clock_at_once():
+    """The host's system clock (what the ROS clock and the motion capture's stamps read) is
+    stepped 0.22 s forward, later 0.5 s back, while the monotonic clock runs on; every stamp
+    must stay on the sample's time in the system clock of that moment. Anchored in the system
+    clock, the stamps after the forward step lagged by it (the force 0.22 s before the pose it
+    belongs with), for the many minutes the drift allowance takes to catch up."""
+    rng = np.random.default_rng(5)
+    rate = 1000.0
+    n = 9000
+    steady = 50.0 + np.arange(n) / rate                     # sample times, monotonic clock
+    system_minus_steady = np.full(n, 1.7e9)
+    system_minus_steady[3000:] += 0.22
+    system_minus_steady[6000:] -= 0.5
+    lag = 0.0005 + rng.exponential(0.001, n)
+    clock = SampleClock(rate)
+    stamps = np.array([clock.stamp_in(i, float(t + d), float(t + d + off))
+                       for i, t, d, off in zip(range(n), steady, lag, system_minus_steady)])
+    err = stamps - (steady + system_minus_steady)
+    assert np.all(np.abs(err[100:]) < 0.003), np.abs(err[100:]).max()
+    assert clock.restarts == 0
+    # the clock anchored in the system clock instead: behind by the step after it
+    old = SampleClock(rate)
+    old_stamps = np.array([old.stamp(i, float(t + d + off))
+                           for i, t, d, off in zip(range(n), steady, lag, system_minus_steady)])
+    assert np.all((steady + system_minus_steady - old_stamps)[3100:5900] > 0.2)
