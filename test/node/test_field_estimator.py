@@ -91,8 +91,6 @@ class Harness:
         self.thread.start()
         assert self.begin.wait_for_service(timeout_sec=WAIT_S)
         assert self.estimate.wait_for_service(timeout_sec=WAIT_S)
-        assert wait_until(lambda: self.force_pub.get_subscription_count() == 1
-                          and self.pose_pub.get_subscription_count() == 1)
 
     def _spin(self, context):
         while not self.stop.is_set() and context.ok():
@@ -104,7 +102,15 @@ class Harness:
         return future.result()
 
     def begin_sweep(self):
-        return self.call(self.begin, Trigger.Request())
+        """The node subscribes to the streams at begin_sweep and answers once both publishers
+        send to it: what is published after the answer is collected."""
+        answer = self.call(self.begin, Trigger.Request())
+        assert (self.force_pub.get_subscription_count(), self.pose_pub.get_subscription_count()) == (1, 1)
+        return answer
+
+    def listening(self):
+        """(force, pose) subscriptions of the node that the peer's publishers send to."""
+        return self.force_pub.get_subscription_count(), self.pose_pub.get_subscription_count()
 
     def estimate_field(self, iteration=0, fan_names=None, pwm=U, peek=False, required=()):
         names_ = list(fan_names if fan_names is not None else self.node._fan_names)
@@ -264,10 +270,13 @@ def test_a_force_block_with_unequal_columns_is_dropped_and_collection_goes_on(ha
 
 
 def test_collection_stops_at_estimate_and_restarts_at_begin(harness, sim):
+    # between sweeps the node takes neither stream (it would cost it a sixth of a core)
+    assert wait_until(lambda: harness.listening() == (0, 0)), harness.listening()
     streams = sweep_streams(sim, seed=1)
     harness.begin_sweep()
     harness.publish(*streams)
     assert harness.estimate_field().success
+    assert wait_until(lambda: harness.listening() == (0, 0)), harness.listening()
     later = sweep_streams(sim, n_poses=50, t_start=2000.0, seed=2)
     harness.publish(*later, expect_buffered=False)
     time.sleep(0.2)
@@ -299,6 +308,8 @@ def test_every_sample_is_journaled_and_a_new_node_takes_an_unfinished_sweep_back
     second = Harness(ros_context, journal_dir)       # ... and a new one starts
     try:
         assert second.node._collecting and len(second.node._force) == half_force
+        # a node that takes a sweep back listens from its start
+        assert wait_until(lambda: second.listening() == (1, 1)), second.listening()
         second.publish(force_t[half_force:], force[half_force:], pose_t[half_pose:],
                        pose_xy[half_pose:], expect_buffered=False)
         assert wait_until(lambda: len(second.node._force) == len(force_t)
