@@ -209,6 +209,7 @@ class ForceSensorNode(LifecycleNode):
             self.get_logger().warning(f'sensor fault, sample not published: {self._last_fault}',
                                       throttle_duration_sec=2.0)
             return
+        steady = time.monotonic()
         now = self.get_clock().now()
         if self._sample_clock is None:
             stamp = now.to_msg()
@@ -217,7 +218,7 @@ class ForceSensorNode(LifecycleNode):
                 self._clock_restart = False
                 self._sample_clock.reset()
             stamp = seconds_to_stamp(self._sample_clock.stamp_in(
-                sample.rdt_sequence, time.monotonic(), now.nanoseconds * 1e-9))
+                sample.rdt_sequence, steady, now.nanoseconds * 1e-9))
         (fx, fy, fz), (tx, ty, tz) = sample.force, sample.torque
         s = self._sign
         # The wrench is built and sent only while someone subscribes (a bag, the lab's stack):

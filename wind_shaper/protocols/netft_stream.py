@@ -218,6 +218,8 @@ class SampleClock:
         self._n = 0
         self._offset = None
         self._last_arrival = None
+        self._clock_difference = None   # stamp_in: the other clock minus the steady one [s]
+        self._step_seen = []
 
     def stamp(self, rdt_sequence: int, arrival: float) -> float:
         """Sample time [s] of record ``rdt_sequence`` that arrived at ``arrival`` [s]."""
@@ -239,15 +241,33 @@ class SampleClock:
         self._last_arrival = arrival
         return self._offset + self._n / self.rate_hz
 
+    #: the two clocks' difference is followed only when it moves by more than this [s] ...
+    STEP_S = 0.005
+    #: ... in this many arrivals in a row: one late reading of a clock is not a step
+    STEP_CONFIRM = 3
+
     def stamp_in(self, rdt_sequence: int, arrival_steady: float, clock_at_arrival: float) -> float:
         """Sample time of record ``rdt_sequence`` in the clock that read ``clock_at_arrival`` [s]
-        (the ROS clock the other streams are stamped in) at the moment the steady clock (e.g.
-        ``time.monotonic()``) read ``arrival_steady`` [s].
+        (the ROS clock the other streams are stamped in) when the steady clock (e.g.
+        ``time.monotonic()``) read ``arrival_steady`` [s]; read the two one right after the other.
 
-        The anchor is kept in the steady clock, which no clock step moves, and each stamp is
-        moved into the other clock by the two clocks' difference at its arrival. A lab host's
-        system clock can be stepped (NTP or chrony correcting it, a virtual machine resumed):
-        anchored in that clock, a step forward left every later stamp behind by the step until
-        the drift allowance caught up (0.2 s took 17 min at 200 ppm), so the force no longer
-        paired with the plate's pose, whose stamps follow the step."""
-        return self.stamp(rdt_sequence, arrival_steady) + (clock_at_arrival - arrival_steady)
+        The anchor is kept in the steady clock, which no clock step moves, and the stamps are
+        moved into the other clock by the two clocks' difference. A lab host's system clock can
+        be stepped (NTP or chrony correcting it, a virtual machine resumed): anchored in that
+        clock, a step forward left every later stamp behind by the step until the drift
+        allowance caught up (0.2 s took 17 min at 200 ppm), so the force no longer paired with
+        the plate's pose, whose stamps follow the step. The difference is taken as it was until
+        it has moved by more than ``STEP_S`` in ``STEP_CONFIRM`` arrivals in a row: a thread
+        preempted between the two readings moves one reading by milliseconds, which at 1 kHz
+        would put stamps out of order."""
+        difference = clock_at_arrival - arrival_steady
+        if self._clock_difference is None:
+            self._clock_difference = difference
+        elif abs(difference - self._clock_difference) > self.STEP_S:
+            self._step_seen.append(difference)
+            if len(self._step_seen) >= self.STEP_CONFIRM:
+                self._clock_difference = float(sorted(self._step_seen)[len(self._step_seen) // 2])
+                self._step_seen = []
+        else:
+            self._step_seen = []
+        return self.stamp(rdt_sequence, arrival_steady) + self._clock_difference
