@@ -256,10 +256,11 @@ class SampleClock:
         be stepped (NTP or chrony correcting it, a virtual machine resumed): anchored in that
         clock, a step forward left every later stamp behind by the step until the drift
         allowance caught up (0.2 s took 17 min at 200 ppm), so the force no longer paired with
-        the plate's pose, whose stamps follow the step. The difference is taken as it was until
-        it has moved by more than ``STEP_S`` in ``STEP_CONFIRM`` arrivals in a row: a thread
-        preempted between the two readings moves one reading by milliseconds, which at 1 kHz
-        would put stamps out of order."""
+        the plate's pose, whose stamps follow the step. The difference is the smallest one read
+        (the other clock is read after the steady one, so a delay between the readings can only
+        add to it) and follows a change of more than ``STEP_S`` only once ``STEP_CONFIRM``
+        arrivals in a row show it: a thread preempted between the two readings moves one
+        reading by milliseconds, which at 1 kHz would put stamps out of order."""
         difference = clock_at_arrival - arrival_steady
         if self._clock_difference is None:
             self._clock_difference = difference
@@ -270,4 +271,6 @@ class SampleClock:
                 self._step_seen = []
         else:
             self._step_seen = []
+            # a reading delayed between the two clocks can only make the difference larger
+            self._clock_difference = min(self._clock_difference, difference)
         return self.stamp(rdt_sequence, arrival_steady) + self._clock_difference
