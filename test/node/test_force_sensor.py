@@ -37,7 +37,7 @@ def source(t):
 
 
 class Harness:
-    def __init__(self, context, wrenches=True):
+    def __init__(self, context, wrenches=True, blocks=True):
         self.context = context
         self.executor = SingleThreadedExecutor(context=context)
         self.client = rclpy.create_node('force_sensor_test_client', context=context)
@@ -46,8 +46,9 @@ class Harness:
         self.wrenches, self.diagnostics, self.blocks = [], [], []
         if wrenches:
             self.subscribe_wrenches()
-        self.client.create_subscription(ForceBlock, names.FORCE_BLOCK, self.blocks.append,
-                                        qos.STREAM)
+        if blocks:
+            self.client.create_subscription(ForceBlock, names.FORCE_BLOCK, self.blocks.append,
+                                            qos.STREAM)
         self.client.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
                                         self.diagnostics.append, 10)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
@@ -319,6 +320,39 @@ def test_a_stream_started_again_after_a_silence_is_stamped_at_its_own_sample_tim
         harness.wrenches.clear()
         assert wait_for(lambda: len(harness.wrenches) >= 200, 5.0), len(harness.wrenches)
     # Fx carries each record's sample time since its stream's start (1/500 s counts)
+    late = [stamp_to_seconds(m.header.stamp) - (new_start + m.wrench.force.x)
+            for m in list(harness.wrenches)[50:]]
+    assert max(abs(d) for d in late) < 0.05, (min(late), max(late))
+
+
+def test_the_stream_pauses_while_nobody_listens_and_starts_again_at_a_subscriber(ros_context):
+    """With no subscriber to either force topic the node asks the sensor to stop streaming; a
+    subscriber brings the stream back at once, stamped at its own sample times."""
+    harness = Harness(ros_context, wrenches=False, blocks=False)
+    try:
+        with SimNetFtServer(source, rate_hz=500.0) as server:
+            node = harness.start(server, pause_unheard_s=0.3, sample_rate_hz=500.0)
+            assert wait_for(lambda: server.requests['start'] >= 1, 3.0)
+            assert wait_for(lambda: not server.streaming, 4.0), 'the stream was never paused'
+            assert server.requests['stop'] >= 1
+            generated = server.fault_log().generated
+            values = harness.fresh_diag()
+            assert values['paused'] == 'true' and values['_level'] == b'\x00', values
+            time.sleep(1.2)                      # paused: no start request, no record
+            assert server.requests['start'] == 1 and server.fault_log().generated == generated
+            published = node._published
+            asked = time.monotonic()
+            harness.subscribe_wrenches()
+            assert wait_for(lambda: server.streaming, 2.0), 'the subscriber did not resume it'
+            resumed_after = time.monotonic() - asked
+            wall = time.time() - time.monotonic()
+            new_start = server.stream_start + wall
+            assert wait_for(lambda: len(harness.wrenches) >= 200, 5.0), len(harness.wrenches)
+            assert node._published > published
+    finally:
+        harness.close()
+    assert resumed_after < 1.0, resumed_after
+    # Fx carries each record's sample time since its stream's start
     late = [stamp_to_seconds(m.header.stamp) - (new_start + m.wrench.force.x)
             for m in list(harness.wrenches)[50:]]
     assert max(abs(d) for d in late) < 0.05, (min(late), max(late))

@@ -194,3 +194,55 @@ def test_config_file_lists_every_parameter(ros_context):
         assert node.params == MocapRelayParams()
     finally:
         node.destroy_node()
+
+
+def test_the_relay_stops_listening_while_nobody_listens_to_it_and_starts_at_a_subscriber(
+        ros_context):
+    """With no subscriber to the plate pose the relay drops its subscription to the mocap
+    driver (the driver's publisher then has no reader); a subscriber brings it back at once,
+    and the pause is no dropout."""
+    executor = SingleThreadedExecutor(context=ros_context)
+    driver = rclpy.create_node('mocap_relay_test_driver', context=ros_context)
+    node = MocapRelayNode(context=ros_context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in (CALIBRATION | {'pause_unheard_s': 0.3}).items()])
+    diagnostics, received = [], []
+    pub = driver.create_publisher(PoseStamped, names.MOCAP_POSE, 10)
+    driver.create_subscription(DiagnosticArray, names.DIAGNOSTICS, diagnostics.append, 10)
+    for n in (driver, node):
+        executor.add_node(n)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+
+    def relay_status():
+        for msg in reversed(diagnostics):
+            for status in msg.status:
+                if status.name.startswith(names.MOCAP_RELAY):
+                    return {kv.key: kv.value for kv in status.values} | {
+                        '_level': status.level, '_message': status.message}
+        return None
+    streamer = Streamer(pub.publish, 50.0)
+    try:
+        with streamer.at((0.2, 0.0, 1.0)):
+            assert wait_for(lambda: node._received >= 5, 3.0), 'the relay never listened'
+            # nobody listens to the relay: within a diagnostics period or two it lets go
+            assert wait_for(lambda: pub.get_subscription_count() == 0, 4.0), 'still subscribed'
+            diagnostics.clear()
+            values = wait_for(relay_status, 2.5)
+            assert values['paused'] == 'true' and values['_level'] == b'\x00', values
+            got = node._received
+            time.sleep(0.5)
+            assert node._received == got                 # paused: nothing taken in
+            asked = time.monotonic()
+            driver.create_subscription(PoseStamped, names.PLATE_POSE, received.append, qos.STREAM)
+            assert wait_for(lambda: len(received) >= 10, 3.0), 'no pose relayed after resuming'
+            resumed_after = time.monotonic() - asked
+            diagnostics.clear()
+            values = wait_for(lambda: (v := relay_status()) and v['paused'] == 'false' and v, 3.0)
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        thread.join(timeout=5.0)
+        node.destroy_node()
+        driver.destroy_node()
+    assert resumed_after < 1.5, resumed_after
+    assert values['_level'] == b'\x00' and values['dropouts'] == '0', values
+    assert int(values['pauses']) == 1

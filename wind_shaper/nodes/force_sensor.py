@@ -20,6 +20,12 @@ right-handed.
 Lifecycle: configure opens the UDP socket; activate asks the sensor to stream (and biases it
 with ``bias_on_start``); deactivate asks it to stop; cleanup / shutdown / destroy_node stop the
 stream and close the socket. With ``autostart`` (default) it configures and activates at start.
+
+While active, the stream runs only while someone listens: once neither topic has had a
+subscriber for ``pause_unheard_s``, the node asks the sensor to stop streaming, and it asks
+again at the next subscriber (a field estimator beginning a sweep, a bag, a plot). A graph at
+rest then spends nothing on a thousand records a second that nobody reads. The new stream is
+stamped from its own start (as after any silence); /diagnostics says the stream is paused.
 The stream does not go through the executor at all; the executor (single-threaded) runs the
 services and timers only.
 """
@@ -31,6 +37,7 @@ from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from std_srvs.srv import Trigger
 from wind_shaper_msgs.msg import ForceBlock
@@ -74,6 +81,10 @@ class ForceSensorParams:
     restart_after_s: float = param(1.0, 'while active with no sample for this long, send the '
                                    'start request again (sensor booted late or rebooted) [s]',
                                    low=0.1, high=60.0)
+    pause_unheard_s: float = param(2.0, 'ask the sensor to stop streaming once neither force '
+                                   'topic has had a subscriber for this long, and to start '
+                                   'again at the next subscriber; 0 = stream whenever active '
+                                   '[s]', low=0.0, high=3600.0)
 
     def __post_init__(self):
         if self.force_sign not in (-1, 1):
@@ -106,8 +117,15 @@ class ForceSensorNode(LifecycleNode):
         self._last_sample: float | None = None        # time.monotonic() of the last good sample
         self._last_fault = ''
         self._reported = (time.monotonic(), 0, NetFtStreamStats())
-        self._pub = self.create_publisher(WrenchStamped, names.FORCE, qos.STREAM)
-        self._block_pub = (self.create_publisher(ForceBlock, names.FORCE_BLOCK, qos.STREAM)
+        self._paused = False                  # active, but the sensor asked to stop: nobody listens
+        self._unheard_since: float | None = None   # time.monotonic() since no subscriber
+        self._pauses = 0
+        # a subscriber's arrival resumes a paused stream at once (the watch timer is the backstop)
+        heard = PublisherEventCallbacks(matched=self._on_matched)
+        self._pub = self.create_publisher(WrenchStamped, names.FORCE, qos.STREAM,
+                                          event_callbacks=heard)
+        self._block_pub = (self.create_publisher(ForceBlock, names.FORCE_BLOCK, qos.STREAM,
+                                                 event_callbacks=heard)
                            if p.block_samples > 0 else None)
         self._block_lock = threading.Lock()   # the reader thread fills it, a timer flushes it
         self._block_t: list[float] = []
@@ -147,6 +165,7 @@ class ForceSensorNode(LifecycleNode):
         try:
             with self._lock:
                 self._state = 'active'
+                self._paused, self._unheard_since = False, None
                 self._published = 0
                 self._reported = (time.monotonic(), 0, NetFtStreamStats())
                 self._client.start()
@@ -167,6 +186,7 @@ class ForceSensorNode(LifecycleNode):
         self._flush_block()
         with self._lock:
             self._state = 'inactive'
+            self._paused = False
             client = self._client
         try:
             client.stop()
@@ -289,6 +309,8 @@ class ForceSensorNode(LifecycleNode):
             self._flush_block()
         if self._state != 'active' or client is None:
             return
+        if self._watch_listeners(client, now):
+            return
         last = max(self._last_sample or 0.0, self._last_request)
         if now - last < self.params.restart_after_s:
             return
@@ -308,6 +330,62 @@ class ForceSensorNode(LifecycleNode):
             f'{self.params.restart_after_s} s: start request sent again ({self._rerequests})',
             throttle_duration_sec=5.0)
 
+    # ---------------------------------------------------------------- streaming on demand
+    def _listeners(self) -> int:
+        """Subscribers to either force topic (as the middleware has matched them)."""
+        count = self._pub.get_subscription_count()
+        return count + (self._block_pub.get_subscription_count() if self._block_pub else 0)
+
+    def _on_matched(self, status) -> None:
+        if status.current_count > 0 and self._paused:
+            self._resume()
+
+    def _watch_listeners(self, client: NetFtClient, now: float) -> bool:
+        """Pause the stream once nobody has listened for ``pause_unheard_s``, resume it when
+        someone does; True while paused (there is no stream to watch)."""
+        if self.params.pause_unheard_s <= 0:
+            return False
+        if self._listeners() > 0:
+            self._unheard_since = None
+            if self._paused:
+                self._resume()
+            return False
+        if self._paused:
+            return True
+        if self._unheard_since is None:
+            self._unheard_since = now
+            return False
+        if now - self._unheard_since < self.params.pause_unheard_s:
+            return False
+        try:
+            client.stop()
+        except TransportError as exc:
+            self.get_logger().warning(f'cannot ask the sensor to stop: {exc}',
+                                      throttle_duration_sec=10.0)
+            return False
+        self._paused = True
+        self._pauses += 1
+        self._flush_block()
+        self.get_logger().info("nobody subscribes to the force topics: the sensor's stream is "
+                               'paused until someone does')
+        return True
+
+    def _resume(self) -> None:
+        client = self._client
+        if client is None or self._state != 'active':
+            return
+        try:
+            client.request_stream()
+        except TransportError as exc:
+            self.get_logger().warning(f'cannot ask the sensor to stream again: {exc}',
+                                      throttle_duration_sec=10.0)
+            return
+        # a new stream numbers its records from 1 on the sensor's clock of now: stamp it afresh
+        self._clock_restart = True
+        self._last_request = time.monotonic()
+        self._paused, self._unheard_since = False, None
+        self.get_logger().info('a subscriber to the force topics: the sensor streams again')
+
     def _on_diagnostics_timer(self) -> None:
         now = time.monotonic()
         client = self._client
@@ -323,12 +401,16 @@ class ForceSensorNode(LifecycleNode):
                       rejected_source=stats.rejected, stale=stats.stale, resyncs=stats.resyncs,
                       last_sample_age_s='never' if age is None else age,
                       start_requests_resent=self._rerequests,
+                      paused=self._paused, stream_pauses=self._pauses,
                       last_fault=self._last_fault)
         del values['rejected']
         p = self.params
         where = f'{p.sensor_host}:{p.sensor_port}'
         if self._state != 'active':
             level, message = diag.WARN, f'{self._state}: not streaming'
+        elif self._paused:
+            level, message = diag.OK, ('paused: nobody subscribes to the force topics; the sensor '
+                                       'streams again at the first subscriber')
         elif age is None or age > 1.0:
             level, message = diag.ERROR, (f'no good samples from {where} for over 1 s: check the '
                                           f'sensor address, network and status')

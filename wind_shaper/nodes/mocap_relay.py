@@ -9,6 +9,11 @@ non-unit quaternion, poses not newer than the last accepted one, and jumps (fast
 ``max_speed_m_s`` since the last accepted pose) are dropped and counted; poses outside
 ``max_radius_m`` from the tunnel axis are published and flagged. Dropouts (no accepted pose for
 ``dropout_timeout_s``) and everything above are reported in /diagnostics at 1 Hz.
+
+The relay listens to the mocap driver only while someone listens to it: once ``output_topic``
+has had no subscriber for ``pause_unheard_s`` it drops its input subscription, and it takes it
+again at the next subscriber (a field estimator beginning a sweep, a bag, a plot). A mocap
+system streams whatever anyone reads; a graph at rest then spends nothing on relaying it.
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from dataclasses import dataclass
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -32,6 +38,9 @@ from ..ros.runner import run
 #: the poses whenever the machine was busy.
 MOCAP_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
                        history=HistoryPolicy.KEEP_LAST)
+#: After taking its input again, the relay waits this long for the first pose before it reports
+#: a dropout (the middleware matches the new subscription with the driver first) [s].
+RESUME_GRACE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -50,6 +59,9 @@ class MocapRelayParams:
                                      low=1e-3)
     max_radius_m: float = param(0.40, 'plate centre farther than this from the tunnel axis is '
                                 'flagged as outside the tunnel [m]', low=1e-3)
+    pause_unheard_s: float = param(2.0, 'drop the input subscription once output_topic has had '
+                                   'no subscriber for this long, and take it again at the next '
+                                   'subscriber; 0 = relay always [s]', low=0.0, high=3600.0)
 
     def __post_init__(self):
         self.relay()
@@ -74,12 +86,53 @@ class MocapRelayNode(Node):
         self._last_outside = False
         self._last_position = None
         self._reported = (time.monotonic(), RelayStats(), 0)
-        self._pub = self.create_publisher(PoseStamped, p.output_topic, qos.STREAM)
+        self._input = None                    # the input subscription; None while paused
+        self._resumed_at: float | None = None   # time.monotonic() the input was last taken again
+        self._unheard_since: float | None = None
+        self._pauses = 0
+        # a subscriber's arrival takes the input again at once (the diagnostics timer pauses)
+        self._pub = self.create_publisher(PoseStamped, p.output_topic, qos.STREAM,
+                                          event_callbacks=PublisherEventCallbacks(
+                                              matched=self._on_matched))
         self._pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
-        self.create_subscription(PoseStamped, p.input_topic, self._on_mocap_pose, MOCAP_QOS)
+        self._listen()
         self.create_timer(1.0, self._on_diagnostics_timer)
         self.get_logger().info(f'{p.input_topic} -> {p.output_topic}; T_tunnel_mocap = '
                                f'{self._relay.tunnel_from_mocap!r}')
+
+    # -- listening on demand ----------------------------------------------------------------
+    def _listen(self) -> None:
+        if self._input is None:
+            self._input = self.create_subscription(PoseStamped, self.params.input_topic,
+                                                   self._on_mocap_pose, MOCAP_QOS)
+            self._resumed_at, self._unheard_since = time.monotonic(), None
+            self._last_accepted = None    # the silence while paused is no dropout
+
+    def _on_matched(self, status) -> None:
+        if status.current_count > 0 and self._input is None:
+            self._listen()
+            self.get_logger().info(f'a subscriber to {self.params.output_topic}: relaying again')
+
+    def _watch_listeners(self, now: float) -> None:
+        """Drop the input once nobody has listened for ``pause_unheard_s``; take it again when
+        someone does (the matched event does so at once; this is the backstop)."""
+        if self.params.pause_unheard_s <= 0:
+            return
+        if self._pub.get_subscription_count() > 0:
+            self._unheard_since = None
+            self._listen()
+            return
+        if self._input is None:
+            return
+        if self._unheard_since is None:
+            self._unheard_since = now
+        elif now - self._unheard_since >= self.params.pause_unheard_s:
+            self.destroy_subscription(self._input)
+            self._input = None
+            self._last_accepted = None    # the silence while paused is no dropout
+            self._pauses += 1
+            self.get_logger().info(f'nobody subscribes to {self.params.output_topic}: the relay '
+                                   f'stops listening to {self.params.input_topic} until someone does')
 
     def _on_mocap_pose(self, msg: PoseStamped) -> None:
         now = time.monotonic()
@@ -116,12 +169,22 @@ class MocapRelayNode(Node):
 
     def _on_diagnostics_timer(self) -> None:
         now = time.monotonic()
+        self._watch_listeners(now)
         stats = self._relay.stats
         t_prev, prev, received_prev = self._reported
         self._reported = (now, stats, self._received)
         rate = (stats.accepted - prev.accepted) / max(now - t_prev, 1e-9)
-        age = None if self._last_accepted is None else now - self._last_accepted
-        in_dropout = age is None or age > self.params.dropout_timeout_s
+        waiting = False
+        if self._last_accepted is not None:
+            age = now - self._last_accepted
+        elif self._received and self._resumed_at is not None:
+            # listening again: the middleware's matching with the driver is no dropout
+            age = now - self._resumed_at
+            waiting = age < RESUME_GRACE_S
+        else:
+            age = None
+        in_dropout = self._input is not None and not waiting and (
+            age is None or age > self.params.dropout_timeout_s)
         if in_dropout and age is not None and age > self._longest_dropout:
             self._longest_dropout = age
         values = dict(received=self._received, published=stats.accepted, rate_hz=rate,
@@ -129,14 +192,21 @@ class MocapRelayNode(Node):
                       outside=stats.outside, dropouts=self._dropouts + int(in_dropout and
                                                                            age is not None),
                       longest_dropout_s=self._longest_dropout,
-                      last_pose_age_s='never' if age is None else age,
-                      input_frame=self._input_frame)
+                      last_pose_age_s=('never' if self._last_accepted is None
+                                       else now - self._last_accepted),
+                      input_frame=self._input_frame, paused=self._input is None,
+                      pauses=self._pauses)
         if self._last_position is not None:
             x, y, z = self._last_position
             values.update(x_m=float(x), y_m=float(y), z_m=float(z),
                           radius_m=float((x * x + y * y) ** 0.5))
         fresh = {k: getattr(stats, k) - getattr(prev, k) for k in ('invalid', 'stale', 'jumps')}
-        if in_dropout:
+        if self._input is None:
+            level, message = diag.OK, (f'paused: nobody subscribes to {self.params.output_topic}; '
+                                       f'relaying resumes at the first subscriber')
+        elif waiting:
+            level, message = diag.OK, 'resuming: waiting for the first pose'
+        elif in_dropout:
             level, message = diag.ERROR, ('no pose received yet' if age is None else
                                           f'dropout: no good pose for {age:.2f} s')
         elif self._last_outside:
