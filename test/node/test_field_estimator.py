@@ -429,6 +429,23 @@ def test_buffers_keep_only_max_buffer_s(ros_context, sim, tmp_path):
         h.close()
 
 
+def test_a_sweep_nobody_asks_about_lets_go_of_the_streams_and_keeps_its_samples(
+        ros_context, sim, tmp_path):
+    """An iteration cancelled mid-sweep never calls estimate: after max_buffer_s with no call
+    the node takes neither stream (the force sensor and the relay may rest), and what it had
+    collected still gives the estimate."""
+    h = Harness(ros_context, tmp_path / 'journal', [Parameter('max_buffer_s', value=5.0)])
+    try:
+        h.begin_sweep()
+        h.publish(*sweep_streams(sim, seed=8))
+        assert h.estimate_field(peek=True).success           # a call: the sweep goes on
+        assert h.listening() == (1, 1)
+        assert wait_until(lambda: h.listening() == (0, 0)), h.listening()
+        assert h.estimate_field().success                     # nothing collected was lost
+    finally:
+        h.close()
+
+
 def test_a_peek_estimates_what_is_collected_so_far_and_collection_goes_on(harness, sim):
     first = sweep_streams(sim, n_poses=400, seed=3)
     assert harness.begin_sweep().success

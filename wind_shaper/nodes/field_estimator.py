@@ -75,7 +75,9 @@ class FieldEstimatorParams:
     pose_topic: str = param(names.PLATE_POSE, 'geometry_msgs/PoseStamped plate centre '
                             '[m, tunnel frame], stamped at capture')
     max_buffer_s: float = param(300.0, 'longest sweep kept in the buffers; older samples are '
-                                'dropped [s]', low=1.0, high=3600.0)
+                                'dropped; a sweep with no call (begin_sweep, estimate) for this '
+                                'long is taken as abandoned and its streams let go [s]',
+                                low=1.0, high=3600.0)
     journal_dir: str = param('runs/journal', "folder of the sweep journal: every collected sample "
                              "on disk as it arrives, reloaded after a crash ('' = off; relative: "
                              'to the working directory)')
@@ -117,6 +119,7 @@ class FieldEstimatorNode(Node):
         self._force = SampleBuffer(1, p.max_buffer_s)
         self._pose = SampleBuffer(2, p.max_buffer_s)
         self._began_at: float | None = None  # time.monotonic() of begin_sweep
+        self._last_call = time.monotonic()   # of the last begin_sweep or estimate (peeks too)
         self._last = 'no estimate yet'
         self._last_ok = True
         self._estimates = 0
@@ -240,7 +243,7 @@ class FieldEstimatorNode(Node):
             if self._journal is not None:
                 folder = self._journal.begin()   # an unfinished sweep before it: 'abandoned'
             self._collecting = True
-            self._began_at = time.monotonic()
+            self._began_at = self._last_call = time.monotonic()
             self._sweep_fit = None
         self._listen(self.params.match_wait_s)
         response.success = True
@@ -271,6 +274,7 @@ class FieldEstimatorNode(Node):
                               t_start)
 
     async def _handle_estimate(self, request: EstimateField.Request, response: EstimateField.Response):
+        self._last_call = time.monotonic()
         if request.peek:
             return await self._handle_peek(request, response)
         with self._lock:
@@ -430,7 +434,19 @@ class FieldEstimatorNode(Node):
         super().destroy_node()
 
     # -- diagnostics ----------------------------------------------------------------------------------
+    def _let_go_of_an_abandoned_sweep(self) -> None:
+        """A sweep nobody has asked about for ``max_buffer_s`` (an iteration cancelled or failed
+        mid-sweep, a coordinator gone) keeps its samples for a later estimate, but the streams
+        are let go: taken on for nothing they keep the force sensor and the relay streaming."""
+        if self._stream_subs and time.monotonic() - self._last_call > self.params.max_buffer_s:
+            self._stop_listening()
+            self.get_logger().warning(
+                f'no call for {self.params.max_buffer_s:.0f} s during a sweep: taken as abandoned, '
+                f'the force and pose streams are no longer taken (what was collected is kept for '
+                f'estimate; begin_sweep starts a new sweep)')
+
     def _publish_diagnostics(self) -> None:
+        self._let_go_of_an_abandoned_sweep()
         state = 'collecting' if self._collecting else 'idle'
         values = {'state': state, 'force_samples': len(self._force), 'pose_samples': len(self._pose),
                   'dropped_force_samples': self._force.dropped, 'estimates': self._estimates,
