@@ -41,6 +41,17 @@ def pose(t, xyz, q=(0.0, 0.0, 0.0, 1.0), frame='mocap'):
     return msg
 
 
+def relay_status(diagnostics):
+    """The values of the relay's newest status among ``diagnostics``, with its level and
+    message (None: none yet)."""
+    for msg in reversed(diagnostics):
+        for status in msg.status:
+            if status.name.startswith(names.MOCAP_RELAY):
+                return {kv.key: kv.value for kv in status.values} | {
+                    '_level': status.level, '_message': status.message}
+    return None
+
+
 @pytest.fixture
 def relay(ros_context):
     """(node, send(msg), received list, diag() -> next diagnostics values)."""
@@ -61,15 +72,7 @@ def relay(ros_context):
 
     def diag(timeout_s=2.5):
         diagnostics.clear()
-
-        def latest():
-            for msg in reversed(diagnostics):
-                for status in msg.status:
-                    if status.name.startswith(names.MOCAP_RELAY):
-                        return {kv.key: kv.value for kv in status.values} | {
-                            '_level': status.level, '_message': status.message}
-            return None
-        return wait_for(latest, timeout_s)
+        return wait_for(lambda: relay_status(diagnostics), timeout_s)
     try:
         yield node, pub.publish, received, diag
     finally:
@@ -212,14 +215,6 @@ def test_the_relay_stops_listening_while_nobody_listens_to_it_and_starts_at_a_su
         executor.add_node(n)
     thread = threading.Thread(target=executor.spin, daemon=True)
     thread.start()
-
-    def relay_status():
-        for msg in reversed(diagnostics):
-            for status in msg.status:
-                if status.name.startswith(names.MOCAP_RELAY):
-                    return {kv.key: kv.value for kv in status.values} | {
-                        '_level': status.level, '_message': status.message}
-        return None
     streamer = Streamer(pub.publish, 50.0)
     try:
         with streamer.at((0.2, 0.0, 1.0)):
@@ -227,7 +222,7 @@ def test_the_relay_stops_listening_while_nobody_listens_to_it_and_starts_at_a_su
             # nobody listens to the relay: within a diagnostics period or two it lets go
             assert wait_for(lambda: pub.get_subscription_count() == 0, 4.0), 'still subscribed'
             diagnostics.clear()
-            values = wait_for(relay_status, 2.5)
+            values = wait_for(lambda: relay_status(diagnostics), 2.5)
             assert values['paused'] == 'true' and values['_level'] == b'\x00', values
             got = node._received
             time.sleep(0.5)
@@ -237,7 +232,8 @@ def test_the_relay_stops_listening_while_nobody_listens_to_it_and_starts_at_a_su
             assert wait_for(lambda: len(received) >= 10, 3.0), 'no pose relayed after resuming'
             resumed_after = time.monotonic() - asked
             diagnostics.clear()
-            values = wait_for(lambda: (v := relay_status()) and v['paused'] == 'false' and v, 3.0)
+            values = wait_for(lambda: (v := relay_status(diagnostics))
+                              and v['paused'] == 'false' and v, 3.0)
     finally:
         executor.shutdown(timeout_sec=2.0)
         thread.join(timeout=5.0)

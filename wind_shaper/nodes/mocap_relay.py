@@ -132,7 +132,8 @@ class MocapRelayNode(Node):
             self._last_accepted = None    # the silence while paused is no dropout
             self._pauses += 1
             self.get_logger().info(f'nobody subscribes to {self.params.output_topic}: the relay '
-                                   f'stops listening to {self.params.input_topic} until someone does')
+                                   f'stops listening to {self.params.input_topic} until someone '
+                                   f'does')
 
     def _on_mocap_pose(self, msg: PoseStamped) -> None:
         now = time.monotonic()
