@@ -20,14 +20,14 @@ right-handed.
 Lifecycle: configure opens the UDP socket; activate asks the sensor to stream (and biases it
 with ``bias_on_start``); deactivate asks it to stop; cleanup / shutdown / destroy_node stop the
 stream and close the socket. With ``autostart`` (default) it configures and activates at start.
+The stream does not go through the executor at all; the executor (single-threaded) runs the
+services and timers only.
 
 While active, the stream runs only while someone listens: once neither topic has had a
 subscriber for ``pause_unheard_s``, the node asks the sensor to stop streaming, and it asks
 again at the next subscriber (a field estimator beginning a sweep, a bag, a plot). A graph at
 rest then spends nothing on a thousand records a second that nobody reads. The new stream is
 stamped from its own start (as after any silence); /diagnostics says the stream is paused.
-The stream does not go through the executor at all; the executor (single-threaded) runs the
-services and timers only.
 """
 from __future__ import annotations
 
