@@ -14,13 +14,14 @@ Methods:
   warm+short  the warm start with sweeps as long as needed (the shipped default)
   warm+region warm+short, and after the first sweep only the region the step changed
 
-Plants (the prior is commissioned on each plant as the commissioning guide says, the 7 designed
-moving-plate sweeps of `lhs:6+level` fitted by `wind-shaper calibrate --data`, unless said
-otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
+Plants (the prior is commissioned on each plant as the commissioning guide says, the 8
+moving-plate sweeps of `lhs:6+level` (fans off twice, 4 designed, 2 level) fitted by
+`wind-shaper calibrate --data`, unless said otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
 fan alone, which tells the prior nothing of how the fans interact; the runs' update also fits
 the designed sweeps' field maps (the first step all of them, later steps those near them and
-the level sweep's, every fan at the middle of the range, in every step), which `calibrate --data`
-keeps in the model file, unless ``--no-prior-maps``; ``--no-level-sweep``: `lhs:6` alone):
+the level sweeps', every fan at the middle of the range and low in it, in every step), which
+`calibrate --data` keeps in the model file, unless ``--no-prior-maps``; ``--no-level-sweep``:
+`lhs:6` alone):
   nominal          the default 7-fan rig (prior: config/model.yaml)
   radius 0.20      hexagon fans 0.20 m from the axis instead of 0.25 m
   unequal curves   every fan on its own throttle curve (U ** p_j, p_j = 0.75-1.5: sim effect
@@ -527,8 +528,8 @@ def main(argv=None):
                          "held-plate batch (every fan alone), or N designed moving-plate sweeps "
                          "with every fan running (as `collect --design lhs` and `calibrate --data`)")
     ap.add_argument('--no-level-sweep', action='store_true',
-                    help='commission from lhs:N alone, without its level sweep (every fan at the middle '
-                         'of the range, which the update keeps among a run\'s maps: level_map)')
+                    help='commission from lhs:N alone, without its level sweeps (every fan at the middle '
+                         'of the range and low in it, which the update keeps among a run\'s maps: level_map)')
     ap.add_argument('--no-prior-maps', action='store_true',
                     help="the runs' first step without the commissioning's sweeps as field maps "
                          "(what a model file without them gives)")

@@ -122,13 +122,15 @@ class AdaptiveUpdate:
     the fit's posterior leaves in each fan's curve over the fan's move from the base (fan by
     fan), so that a move across a part of a curve no map has pinned down (a stall dip seen by
     one sweep) pays for what it may turn out to be; 0: the predicted error alone; level_map: the
-    commissioning's first map with every enabled fan at one command (the level sweep of
-    `collect --design lhs:N+level`) is one of the run's maps in every update while the tunnel
-    is the one commissioned: fitted at full weight, however far from the base, and in the
-    secant. The run's own maps sit near an optimum that keeps some fans low, where their thrust,
-    and so what the maps show of them, is small; the level map shows every fan running at one
-    load, in the middle of the range, where the fans' curves have no ends to bend the fit (the
-    designed sweeps' far maps fade instead). ``info['level_map']`` says whether it was used;
+    commissioning's maps with every enabled fan at one command (the two level sweeps of
+    `collect --design lhs:N+level`, at the middle of the range and low in it) are among the
+    run's maps in every update while the tunnel is the one commissioned: fitted at full weight,
+    however far from the base, and in the secant. The run's own maps sit near an optimum that
+    keeps some fans low, where their thrust, and so what the maps show of them, is small; a
+    level map shows every fan running at one load, where the fans' curves have no ends to bend
+    the fit (the designed sweeps' far maps fade instead), and the low one shows them where such
+    an optimum keeps many of them. ``info['level_map']`` says whether they were used and
+    ``info['level_maps']`` how many;
     spread_sd [-], tilt_sd [N per 0.1 m]: the prior sds of the per-fan fit's share of every
     jet's force spread evenly over the key points (never below 0) and of a plane across the
     section (``ShapeFit``; 0: none; dense priors only): a screen's or mixing's even share grows
@@ -276,10 +278,10 @@ class AdaptiveUpdate:
         def as_map(p, info):
             return (np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
                     None if p.std is None else np.asarray(p.std, float), info)
-        # The commissioning's level map (every enabled fan at one command) joins the run's maps,
+        # The commissioning's level maps (every enabled fan at one command) join the run's maps,
         # first (``level_map``); never a base to step from.
         use_level = self.level_map and target is not None and self.commissioning_weight > 0
-        level = [p for p in inp.prior_maps if is_level(p.U, on)][:1] if use_level else []
+        level = [p for p in inp.prior_maps if is_level(p.U, on)] if use_level else []
         n_level = len(level)
         maps = [as_map(p, {'commissioning': True}) for p in level] + [as_map(p, dict(p.info)) for p in history]
         maps.append((U_k, -delta, None if inp.std is None else np.asarray(inp.std, float), {}))
@@ -551,6 +553,7 @@ class AdaptiveUpdate:
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
                 'load_slope': float(slope), 'spread_share': float(spread), 'curve': bool(curved), 'level_map': bool(n_level and fit_from < n_level),
+                'level_maps': n_level if fit_from < n_level else 0,
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason}

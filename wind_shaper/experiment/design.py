@@ -6,8 +6,9 @@ PWM in the tunnel's fan order. ``make_design(spec, fans, u_min, u_max)`` builds 
 * ``lhs:N``: N sweeps, the first and last with every fan off (a background or dead band shows
   there), the rest a Latin hypercube over [u_min, u_max] (each fan spread evenly, independently
   of the others: what the diagnosis needs to tell the fans' effects apart);
-* ``lhs:N+level``: the same and one more sweep, before the last, with every enabled fan at the
-  middle of the range (the level sweep the shaping's update keeps among a run's maps,
+* ``lhs:N+level``: the same and two more sweeps, before the last, each with every enabled fan at
+  one command: the middle of the range, then ``LOW_LEVEL`` of the way up it, where a run's
+  optimum keeps many fans (the level sweeps the shaping's update keeps among a run's maps,
   ``AdaptiveUpdate.level_map``; the recommended commissioning is ``lhs:6+level``);
 * ``single-off``: every fan at the middle of the range, then each enabled fan off in turn;
 * a CSV file (header: ``label`` (optional) then the fan names, in any order; one row per sweep) or
@@ -31,6 +32,13 @@ import yaml
 from ..core.errors import WindShaperError
 from ..core.limits import excerpt
 from ..core.safe_yaml import read_text_file, read_yaml_file
+
+#: Where the low level sweep of ``lhs:N+level`` runs every fan, as a share of the way from u_min
+#: to u_max: below the middle, where a run's optimum keeps many fans (edge fans under a peaked
+#: profile, fans that starve their neighbours) and where a fan's curve has its dead band or stall.
+#: Screened at 0.2, 0.3 and 0.4 of the way (0.2 and 0.3 alike, 0.4 worse) and at 0.77 and 1.0
+#: (worse; see the benchmarks).
+LOW_LEVEL = 0.3
 from ..core.geometry import FanArray
 
 __all__ = ['Design', 'DesignError', 'design_commands', 'check_design', 'make_design',
@@ -182,14 +190,16 @@ def make_design(spec: str, fans: FanArray, u_min: float, u_max: float, *, seed: 
             count = 0
         if count < 3:
             raise DesignError(f'{spec!r}: write lhs:N with N >= 3 sweeps (the first and last are '
-                              f'fans off; lhs:N+level adds one with every fan at the middle of the '
-                              f'range); the diagnosis wants 8-12')
+                              f'fans off; lhs:N+level adds two with every fan at one command); the '
+                              f'diagnosis wants 8-12')
         inner = design_commands(n, count - 2, low=u_min, high=u_max, seed=seed, enabled=fans.enabled)
         commands = np.vstack([np.zeros(n), inner, np.zeros(n)])
         labels = ['fans off'] + [f'lhs {i + 1}' for i in range(count - 2)] + ['fans off again']
-        if level:   # every fan at the middle of the range, before the last sweep with fans off
-            commands = np.vstack([commands[:-1], np.where(fans.enabled, mid, 0.0), commands[-1:]])
-            labels = labels[:-1] + ['level (middle)'] + labels[-1:]
+        if level:   # every fan at one command, twice, before the last sweep with fans off
+            low = u_min + LOW_LEVEL * (u_max - u_min)
+            rows = [np.where(fans.enabled, u, 0.0) for u in (mid, low)]
+            commands = np.vstack([commands[:-1], *rows, commands[-1:]])
+            labels = labels[:-1] + ['level (middle)', 'level (low)'] + labels[-1:]
         return check_design(list(fans.names), commands, labels, fans, u_min, u_max, spec)
     if spec == 'single-off':
         rows, labels = [np.where(fans.enabled, mid, 0.0)], ['all at the middle']

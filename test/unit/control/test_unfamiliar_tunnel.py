@@ -455,7 +455,9 @@ SCREEN_WARM = [{'name': 'flow_screen', 'share': 0.3},
 def test_the_spread_and_the_tilt_keep_the_second_step_on_a_screened_warm_tunnel():
     """The uniform profile on that tunnel, its prior commissioned from `lhs:6+level`: with the
     fit's spread share and plane (the shipped settings) the commands after the second update
-    give 0.0637 / 0.0641 N^2 (seeds 2, 3), without them 0.1006 / 0.0710."""
+    give 0.0637 / 0.0643 N^2 (seeds 2, 3), without them 0.0652 / 0.0682. (With the middle level
+    sweep alone, before the low one joined it, without them 0.1006 / 0.0710: the low level map
+    shows most of what the terms hold.)"""
     setup, effects, cal, maps = _commissioned(SCREEN_WARM)
     shaping, kp = setup.shaping, setup.geometry.key_points
     assert shaping.make_rule().spread_sd > 0 and shaping.make_rule().tilt_sd > 0
@@ -471,4 +473,47 @@ def test_the_spread_and_the_tilt_keep_the_second_step_on_a_screened_warm_tunnel(
             records = [loop.iterate() for _ in range(2)]
             after[seed, terms] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
     assert all(after[s, True] < after[s, False] for s in (2, 3)), after
-    assert after[2, True] + after[3, True] < 0.85 * (after[2, False] + after[3, False]), after
+    assert after[2, True] + after[3, True] < 0.975 * (after[2, False] + after[3, False]), after
+
+
+#: fans whose curves differ from each other, jets in a co-flow that carry more the harder the
+#: others run, and jets that pull towards their neighbours: written for the low level sweep's
+#: test, not drawn, and not among the benchmark's tunnels
+UNEQUAL_COFLOW = [{'name': 'unequal_curves', 'spread': 0.3, 'seed': 17},
+                  {'name': 'coflow_carry', 'carry': 0.35},
+                  {'name': 'jet_pairing', 'pull': 0.03}]
+
+
+def test_the_low_level_sweep_brings_the_third_sweep_nearer_the_optimum():
+    """The prior commissioned from `lhs:6+level` (the middle and the low level sweep) against the
+    same design without its low level sweep (the commissioning before it joined): the run's maps
+    sit where the optimum keeps many fans low, which the middle level map does not show. The
+    third sweep [N^2], seeds 2 / 3, measured: uniform 0.0884 / 0.0965 against 0.1226 / 0.1315,
+    Gaussian 0.0592 / 0.0642 against 0.0811 / 0.0710."""
+    from wind_shaper.experiment.design import make_design
+    from wind_shaper.model import paper_prior
+    from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
+    from wind_shaper.workbench.data import from_sim
+    setup = Setup.load()
+    shaping, kp = setup.shaping, setup.geometry.key_points
+    effects = list(effects_from_config(UNEQUAL_COFLOW))
+    design = make_design('lhs:6+level', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
+    assert list(design.labels[-3:-1]) == ['level (middle)', 'level (low)']
+    third = {}
+    for low in (True, False):
+        commands = design.commands if low else np.delete(design.commands, -2, axis=0)
+        data = from_sim(setup.make_sim(seed=0, effects=effects), commands, n_samples=shaping.samples_per_sweep)
+        cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
+        maps = commissioning_maps(data, shaping.make_estimator(cal.model), kp)
+        for name in ('uniform', 'gaussian@LM1'):
+            target = setup.make_target(name).values(kp)
+            for seed in (2, 3):
+                loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
+                                                 shaping, model_error=cal.heldout_rmse, prior_maps=maps)
+                records = [loop.iterate() for _ in range(2)]
+                assert records[-1].info['level_maps'] == (2 if low else 1)
+                truth = setup.make_sim(seed=seed, effects=effects)
+                third[name, seed, low] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+    for name in ('uniform', 'gaussian@LM1'):
+        assert all(third[name, s, True] < third[name, s, False] for s in (2, 3)), third
+        assert third[name, 2, True] + third[name, 3, True] < 0.9 * (third[name, 2, False] + third[name, 3, False]), third

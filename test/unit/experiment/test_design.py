@@ -24,15 +24,17 @@ def test_lhs_spreads_every_fan_with_fans_off_first_and_last(fans):
     assert np.allclose(make_design('lhs:12', fans, 0.0, 0.65, seed=3).commands, d.commands)
 
 
-def test_a_level_sweep_runs_every_enabled_fan_at_the_middle_before_the_last_fans_off(fans):
+def test_the_level_sweeps_run_every_enabled_fan_at_the_middle_and_low_before_the_last_fans_off(fans):
     plain = make_design('lhs:6', fans, 0.0, 0.65, seed=3)
     d = make_design('lhs:6+level', fans, 0.0, 0.65, seed=3)
-    assert d.commands.shape == (7, 7) and d.labels[-2] == 'level (middle)'
-    assert np.allclose(d.commands[-2], 0.325) and np.all(d.commands[-1] == 0)
-    assert np.allclose(np.delete(d.commands, -2, axis=0), plain.commands)   # the rest as lhs:6
+    assert d.commands.shape == (8, 7) and list(d.labels[-3:-1]) == ['level (middle)', 'level (low)']
+    assert np.allclose(d.commands[-3], 0.325) and np.allclose(d.commands[-2], 0.195)
+    assert np.all(d.commands[-1] == 0)
+    assert np.allclose(np.delete(d.commands, [-3, -2], axis=0), plain.commands)   # the rest as lhs:6
     disabled = TunnelGeometry.paper_rig().with_disabled(['CM']).fans
-    row = make_design('lhs:4+level', disabled, 0.1, 0.5).commands[-2]
-    assert row[list(disabled.names).index('CM')] == 0 and np.allclose(np.delete(row, 6), 0.3)
+    rows = make_design('lhs:4+level', disabled, 0.1, 0.5).commands[-3:-1]
+    assert np.all(rows[:, list(disabled.names).index('CM')] == 0)
+    assert np.allclose(np.delete(rows[0], 6), 0.3) and np.allclose(np.delete(rows[1], 6), 0.22)
     with pytest.raises(DesignError, match=r'lhs:N\+level'):
         make_design('lhs:+level', fans, 0.0, 0.65)
 
