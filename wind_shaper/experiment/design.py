@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from ..core.errors import WindShaperError
+from ..core.geometry import FanArray
 from ..core.limits import excerpt
 from ..core.safe_yaml import read_text_file, read_yaml_file
 
@@ -39,7 +40,6 @@ from ..core.safe_yaml import read_text_file, read_yaml_file
 #: Screened at 0.2, 0.3 and 0.4 of the way (0.2 and 0.3 alike, 0.4 worse) and at 0.77 and 1.0
 #: (worse; see the benchmarks).
 LOW_LEVEL = 0.3
-from ..core.geometry import FanArray
 
 __all__ = ['Design', 'DesignError', 'design_commands', 'check_design', 'make_design',
            'write_design']
