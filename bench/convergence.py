@@ -16,8 +16,9 @@ Methods:
 
 Plants (the prior is commissioned on each plant as the commissioning guide says, the 8
 moving-plate sweeps of `lhs:6+level` (fans off twice, 4 designed, 2 level) fitted by
-`wind-shaper calibrate --data`, unless said otherwise; ``--calibration held`` commissions it with the paper's held-plate batch instead, every
-fan alone, which tells the prior nothing of how the fans interact; the runs' update also fits
+`wind-shaper calibrate --data`, unless said otherwise; ``--calibration held`` commissions it
+with the paper's held-plate batch instead, every fan alone, which tells the prior nothing of
+how the fans interact; the runs' update also fits
 the designed sweeps' field maps (the first step all of them, later steps those near them and
 the level sweeps', every fan at the middle of the range and low in it, in every step), which
 `calibrate --data` keeps in the model file, unless ``--no-prior-maps``; ``--no-level-sweep``:

@@ -209,10 +209,10 @@ COFLOW = [{'name': 'coflow_carry', 'carry': 0.3, 'thrust_ref': 3.0},
           {'name': 'tilted_fan', 'fan': 'HM1', 'shift': [0.02, -0.03]}]
 
 
-def _commissioned(effect_specs, design_spec: str = 'lhs:6+level'):
+def _commissioned(effect_specs, design_spec: str = 'lhs:6+level', without: tuple = ()):
     """(setup, effects, calibration, commissioning maps): the prior commissioned on the tunnel
     with ``effect_specs`` from the designed sweeps ``design_spec``, as the commissioning guide
-    says."""
+    says; ``without``: labels of the design's sweeps left out."""
     from wind_shaper.experiment.design import make_design
     from wind_shaper.model import paper_prior
     from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
@@ -220,7 +220,8 @@ def _commissioned(effect_specs, design_spec: str = 'lhs:6+level'):
     setup = Setup.load()
     shaping, effects = setup.shaping, list(effects_from_config(effect_specs))
     design = make_design(design_spec, setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
-    data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands,
+    kept = [i for i, label in enumerate(design.labels) if label not in without]
+    data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands[kept],
                     n_samples=shaping.samples_per_sweep)
     cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
     return setup, effects, cal, commissioning_maps(data, shaping.make_estimator(cal.model),
@@ -491,20 +492,13 @@ def test_the_low_level_sweep_brings_the_third_sweep_nearer_the_optimum():
     third sweep [N^2], seeds 2 / 3, measured: uniform 0.0884 / 0.0965 against 0.1226 / 0.1315,
     Gaussian 0.0592 / 0.0642 against 0.0811 / 0.0710."""
     from wind_shaper.experiment.design import make_design
-    from wind_shaper.model import paper_prior
-    from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
-    from wind_shaper.workbench.data import from_sim
     setup = Setup.load()
     shaping, kp = setup.shaping, setup.geometry.key_points
-    effects = list(effects_from_config(UNEQUAL_COFLOW))
     design = make_design('lhs:6+level', setup.geometry.fans, shaping.u_min, shaping.u_max, seed=0)
     assert list(design.labels[-3:-1]) == ['level (middle)', 'level (low)']
     third = {}
     for low in (True, False):
-        commands = design.commands if low else np.delete(design.commands, -2, axis=0)
-        data = from_sim(setup.make_sim(seed=0, effects=effects), commands, n_samples=shaping.samples_per_sweep)
-        cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
-        maps = commissioning_maps(data, shaping.make_estimator(cal.model), kp)
+        _, effects, cal, maps = _commissioned(UNEQUAL_COFLOW, without=() if low else ('level (low)',))
         for name in ('uniform', 'gaussian@LM1'):
             target = setup.make_target(name).values(kp)
             for seed in (2, 3):
