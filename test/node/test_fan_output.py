@@ -196,8 +196,9 @@ def test_heartbeat_loss_makes_safe_and_a_new_command_resumes(harness, autopilot,
     start_at(harness, autopilot, (0.2, 0.5, 0.9), command_timeout_s=30.0)
     autopilot.pause_heartbeat()
     assert wait_for(outputs_are(autopilot, SAFE), 2.0), autopilot.outputs()
-    values = harness.fresh_diag()
-    assert values['link'] == 'down' and values['_level'] == b'\x02'
+    # a report on its way when the link dropped may still say up: wait for the next ones
+    values = wait_for(lambda: (v := harness.fresh_diag()) and v['link'] == 'down' and v, 3.0)
+    assert values and values['_level'] == b'\x02', harness.fresh_diag()
     autopilot.resume_heartbeat()
     assert wait_for(lambda: harness.fresh_diag()['link'] == 'up', 3.0)
     time.sleep(0.3)
@@ -249,7 +250,7 @@ def test_watchdog_makes_safe_unless_commands_keep_coming(harness, autopilot, fau
     harness.command((0.2, 0.5, 0.9))
     assert wait_for(outputs_are(autopilot, SAFE), 2.0)
     assert time.monotonic() - t_last >= 0.45
-    assert harness.fresh_diag()['watchdog_trips'] == '1'
+    assert wait_for(lambda: harness.fresh_diag()['watchdog_trips'] == '1', 3.0)
     fault_row('commands stop arriving (command_timeout_s)',
               'watchdog makes the fans safe', True)
 
@@ -266,8 +267,8 @@ def test_emergency_stop_latches_until_reset(harness, autopilot, fault_row):
         harness.command((0.3, 0.3, 0.3))
         time.sleep(0.1)
     assert outputs_are(autopilot, SAFE)()
-    values = harness.fresh_diag()
-    assert values['estop'] == 'true' and values['rejected'] == '5'
+    values = wait_for(lambda: (v := harness.fresh_diag()) and v['rejected'] == '5' and v, 3.0)
+    assert values and values['estop'] == 'true', harness.fresh_diag()
     assert harness.call(names.RESET_STOP).success
     time.sleep(0.2)
     assert outputs_are(autopilot, SAFE)()      # reset alone does not restart the fans
