@@ -337,11 +337,9 @@ def test_the_stream_pauses_while_nobody_listens_and_starts_again_at_a_subscriber
             assert server.requests['stop'] >= 1
             generated = server.fault_log().generated
             # a report already on its way when the stream stopped may still say unpaused
-            seen = []
-            wait_for(lambda: seen.append(harness.fresh_diag()) or (seen[-1] or {}).get('paused')
-                     == 'true', 4.0)
-            values = seen[-1]
-            assert values and values['paused'] == 'true' and values['_level'] == b'\x00', seen
+            values = wait_for(lambda: (v := harness.fresh_diag()) and v['paused'] == 'true' and v,
+                              4.0)
+            assert values and values['_level'] == b'\x00', harness.fresh_diag()
             time.sleep(1.2)                      # paused: no start request, no record
             assert server.requests['start'] == 1 and server.fault_log().generated == generated
             published = node._published
