@@ -1,6 +1,21 @@
-"""test/graph: the ``up`` fixture starts `wind-shaper up --sim` in the test's tmp_path."""
+"""test/graph: the ``up`` fixture starts `wind-shaper up --sim` in the test's tmp_path; in the
+shared graph lane each test holds the graph lock shared (graph_lock.py)."""
+import fcntl
+
 import pytest
+from graph_lock import SHARED_LANE, held
 from up_driver import Up
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item, nextitem):
+    # outermost: the wait for the lock is not counted in the test's time limit (pytest-timeout
+    # times the protocol inside this) nor in its reported duration
+    if not SHARED_LANE:
+        yield
+        return
+    with held(fcntl.LOCK_SH):
+        yield
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ import sys
 import time
 
 import pytest
+from graph_lock import graph_alone
 from up_driver import UP_LINE, Up, node_pids
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -83,6 +84,11 @@ def experiment(graph):
     """lhs:12 collected with the coordinator SIGKILLed once the second sweep is stored; the
     collect command waits for the restarted coordinator and resumes."""
     root, env, up, pids = graph
+    with graph_alone():   # the diagnosis must find the hidden effect in these sweeps
+        return _collect(root, env, up, pids)
+
+
+def _collect(root, env, up, pids):
     call = subprocess.Popen(
         [sys.executable, '-m', 'wind_shaper.cli.main', 'collect', '--design', f'lhs:{SWEEPS}',
          '--out', 'exp', '--duration', str(SWEEP_S), '--wait', '30'], cwd=root, env=env,
@@ -173,6 +179,13 @@ def test_the_improved_model_tracks_a_target_over_the_tilted_fan_better_than_the_
     must not be worse beyond the noise of one sweep (15 %)."""
     root, env, up, pids = graph
     ensure_models(root, env)
+    with graph_alone():   # the two runs' errors are compared
+        rmse_k0, rmse_k1 = _run_each_model(root, env, up, pids)
+    print(f'measured RMSE at k=0 and k=1, target gaussian@LM2: {rmse_k0}, {rmse_k1}')
+    assert rmse_k1['improved.yaml'] < 1.15 * rmse_k1['prior.yaml'], (rmse_k0, rmse_k1)
+
+
+def _run_each_model(root, env, up, pids):
     rmse_k0, rmse_k1 = {}, {}
     for model in ('prior.yaml', 'improved.yaml'):
         run = root / 'runs' / 'default'
@@ -192,8 +205,7 @@ def test_the_improved_model_tracks_a_target_over_the_tilted_fan_better_than_the_
         rmse = {int(k): float(v) for k, v in re.findall(r'k=\s*(\d+)\s+RMSE ([\d.]+) N', out)}
         assert set(rmse) == {0, 1}, out
         rmse_k0[model], rmse_k1[model] = rmse[0], rmse[1]
-    print(f'measured RMSE at k=0 and k=1, target gaussian@LM2: {rmse_k0}, {rmse_k1}')
-    assert rmse_k1['improved.yaml'] < 1.15 * rmse_k1['prior.yaml'], (rmse_k0, rmse_k1)
+    return rmse_k0, rmse_k1
 
 
 @pytest.mark.timeout(400)

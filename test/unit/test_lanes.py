@@ -3,7 +3,7 @@ import pytest
 from lanes import lane_domain_id
 
 
-@pytest.mark.parametrize('lanes', [1, 2, 3, 4])
+@pytest.mark.parametrize('lanes', [1, 2, 3, 4, 5])
 def test_lanes_running_at_once_never_share_a_domain(lanes):
     for base in range(1, 102):
         ids = [{lane_domain_id(base, lane, lanes, k) for k in range(150)} for lane in range(lanes)]
