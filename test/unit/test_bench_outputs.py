@@ -208,3 +208,33 @@ def test_a_gap_is_called_behind_with_confidence_only_where_the_seeds_could_not_g
     assert not conv.behind_confident(loose, runs(0.2))['behind']
     assert conv.behind_confident(tight[:1], tight)['k'] is None       # one seed: no bound
     assert conv.behind_confident(tight, runs(0.01)[:7])['behind']  # other seed counts are fine
+
+
+def test_the_tunnels_written_after_the_defaults_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-01: every file loads (its plugin registered, its effects
+    built); the plugin's lean moves the field only when the thrust is unbalanced, away from the
+    strong side, and its pre-swirl costs a fan thrust only where its neighbour runs stronger."""
+    conv = _load('convergence')
+    folder = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / 'written_2026-12-01'
+    names = [conv.load_tunnel_file(p)[0] for p in sorted(folder.glob('*.yaml'))]
+    assert len(names) == 4 and len(set(names)) == 4
+    from wind_shaper.core.geometry import TunnelGeometry
+    from wind_shaper.sim import make_effect
+    geo = TunnelGeometry.paper_rig()
+    pos = np.asarray(geo.fans.positions, float)
+    lean = make_effect('plume_lean', lean=0.4)
+    points = np.zeros((1, 2))
+    assert np.allclose(lean.warp(points, np.full(len(pos), 3.0), geo), points)   # balanced
+    strong = np.where(pos[:, 0] > 0.1, 6.0, 1.0)                                   # +x side strong
+    moved = points - lean.warp(points, strong, geo)   # the field's displacement
+    assert moved[0, 0] < -0.01 and abs(moved[0, 1]) < 1e-9
+    swirl = make_effect('neighbour_preswirl', loss=0.5)
+    even = np.full(len(pos), 3.0)
+    assert np.allclose(swirl.thrust(even, geo), even)
+    edge = np.flatnonzero(np.hypot(*pos.T) > 1e-3)
+    order = edge[np.argsort(np.arctan2(pos[edge, 1], pos[edge, 0]))]
+    t = even.copy()
+    t[order[0]] = 5.0   # a stronger fan: the next one counter-clockwise loses, it does not
+    out = swirl.thrust(t, geo)
+    assert out[order[1]] < 3.0 and out[order[0]] == 5.0
+    assert np.allclose(np.delete(out, order[1]), np.delete(t, order[1]))
