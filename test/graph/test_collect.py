@@ -110,7 +110,7 @@ def _collect(root, env, up, pids):
     return root, env, call.returncode, out, before
 
 
-@pytest.mark.timeout(400)
+@pytest.mark.timeout(500)   # the experiment first waits for the other graph lane's test to end
 def test_collect_survives_a_coordinator_crash_and_stores_every_sweep_once(experiment):
     root, env, code, out, before = experiment
     assert code == 0, out
