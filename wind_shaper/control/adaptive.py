@@ -66,6 +66,7 @@ _RANGES = {
     'pool_within': (0, 1, 'a PWM fraction'),
     'curve_sd': (0, 1, "a share of the fan's thrust"),
     'curve_risk': (0, 10, "times the curves' posterior variance"),
+    'ridge_share': (0, 10, "a share of the base's predicted error"),
     'spread_sd': (0, 1, "a share of each fan's force"),
     'tilt_sd': (0, 5, 'N per 0.1 m across the section'),
 }
@@ -121,7 +122,15 @@ class AdaptiveUpdate:
     the curves are bent, each step minimises the predicted error plus this times the variance
     the fit's posterior leaves in each fan's curve over the fan's move from the base (fan by
     fan), so that a move across a part of a curve no map has pinned down (a stall dip seen by
-    one sweep) pays for what it may turn out to be; 0: the predicted error alone; level_map: the
+    one sweep) pays for what it may turn out to be; 0: the predicted error alone; ridge_share
+    [-]: a step along which the corrected prior predicts fields worse than the base's by more
+    than this share of the base's predicted error (and by more than the step's end gains), on
+    the way straight in the fans' thrusts from the base (where the prior's own part is convex, so
+    the rise is what the fit bent in: a stall dip, the load slope), is replaced by Gauss-Newton
+    passes from the base cut back before any such rise: the far side of a fitted dip is the
+    fit's extrapolation from far maps, and a step that crossed one on a stall-dip tunnel more
+    than doubled the error's distance to the best; ``info['ridge']`` says where the way rose
+    (None: no such ridge); 0: off; level_map: the
     commissioning's maps with every enabled fan at one command (the two level sweeps of
     `collect --design lhs:N+level`, at the middle of the range and low in it) are among the
     run's maps in every update while the tunnel is the one commissioned: fitted at full weight,
@@ -170,6 +179,7 @@ class AdaptiveUpdate:
     commissioning_anchor: bool = True
     curve_sd: float = 0.0
     curve_risk: float = 0.0
+    ridge_share: float = 0.0
     level_map: bool = True
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
@@ -483,10 +493,39 @@ class AdaptiveUpdate:
             f = float(np.mean(w_b * pred ** 2))
             return f if risk is None else f + risk(U)[0]
 
+        def refine(U_c, pred_c, J_c, f_c, lo, hi):
+            """Gauss-Newton passes on the model from U_c within [lo, hi], each with a
+            backtracking line search."""
+            for _ in range(self.inner_iterations if idx.size and J_b is not None else 0):
+                separable = None
+                if risk is not None:   # in the solver's units: summed over the key points
+                    _, h_fan, g_fan = risk(U_c)
+                    separable = (N * h_fan[idx], N * g_fan[idx])
+                du = _bounded_lsq(J_c, secant, pred_c, np.sqrt(w_b), idx, lo[idx] - U_c[idx], hi[idx] - U_c[idx],
+                                  self.damping, separable)
+                t, improved = 1.0, False
+                while t > 1e-3:
+                    U_t = U_c.copy()
+                    U_t[idx] = np.clip(U_c[idx] + t * du, lo[idx], hi[idx])
+                    pred_t, J_t = predict(U_t)
+                    f_t = objective(pred_t, U_t)
+                    if f_t < f_c:
+                        improved = True
+                        break
+                    t *= 0.5
+                if not improved:
+                    break
+                done = np.max(np.abs(U_t - U_c)) < 1e-5
+                U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
+                if done:
+                    break
+            return U_c, pred_c, J_c, f_c
+
         idx = np.flatnonzero(on)
         U_c = U_b.copy()
         pred_c, J_c = predict(U_c)
         f_c = objective(pred_c, U_c)
+        from_base = (U_c, pred_c, J_c, f_c, lo, hi)
         if J_b is None:  # large wall: the bounded QP in thrust space is the whole step
             if idx.size:
                 U_c = _thrust_space_qp(basis, gains, r_b, U_b, lo, hi, idx, self.damping)
@@ -507,29 +546,20 @@ class AdaptiveUpdate:
                 # could only wander off it on noise)
                 pinned = (U_t <= lo + 1e-12) | (U_t >= hi - 1e-12)
                 lo, hi = np.where(pinned, U_t, lo), np.where(pinned, U_t, hi)
-        for _ in range(self.inner_iterations if idx.size and J_b is not None else 0):
-            separable = None
-            if risk is not None:   # in the solver's units: summed over the key points
-                _, h_fan, g_fan = risk(U_c)
-                separable = (N * h_fan[idx], N * g_fan[idx])
-            du = _bounded_lsq(J_c, secant, pred_c, np.sqrt(w_b), idx, lo[idx] - U_c[idx], hi[idx] - U_c[idx],
-                              self.damping, separable)
-            t, improved = 1.0, False
-            while t > 1e-3:
-                U_t = U_c.copy()
-                U_t[idx] = np.clip(U_c[idx] + t * du, lo[idx], hi[idx])
-                pred_t, J_t = predict(U_t)
-                f_t = objective(pred_t, U_t)
-                if f_t < f_c:
-                    improved = True
-                    break
-                t *= 0.5
-            if not improved:
-                break
-            done = np.max(np.abs(U_t - U_c)) < 1e-5
-            U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
-            if done:
-                break
+        U_c, pred_c, J_c, f_c = refine(U_c, pred_c, J_c, f_c, lo, hi)
+        ridge = None
+        if self.ridge_share > 0 and J_b is not None and idx.size:
+            # A step the model itself says passes through much worse fields (a stall dip it
+            # fitted between the base and the step's end) bets on its extrapolation to another
+            # basin, which only faded commissioning maps describe: the step stays in the base's
+            # basin instead (Gauss-Newton from the base, cut back before any ridge left)
+            way = basis if basis is not None and basis.monotone else None
+            ridge = _ridge(lambda U: objective(predict(U)[0], U), U_b, U_c, self.ridge_share, err_noise, way)
+            if ridge is not None:
+                U_c, pred_c, J_c, f_c = refine(*from_base)
+                U_c = _before_ridge(lambda U: objective(predict(U)[0], U), U_b, U_c, self.ridge_share, err_noise, way)
+                pred_c, J_c = predict(U_c)
+                f_c = objective(pred_c, U_c)
         U_next = self.bounds.project(U_b + self.step_fraction * (U_c - U_b), on)
         if self.idle_below > self.bounds.u_min:
             # no ESC turns a propeller at a few percent PWM: such a command is sent as u_min
@@ -556,7 +586,7 @@ class AdaptiveUpdate:
                 'level_maps': n_level if fit_from < n_level else 0,
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
-                'stop_reason': reason}
+                'stop_reason': reason, 'ridge': ridge}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
         # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within
@@ -594,6 +624,44 @@ class _CurveRisk:
         Cg = np.einsum('jkl,jl->jk', self.cov, g)
         value = float(np.sum(self.scale * np.sum(d * Cd, axis=1)))
         return value, self.scale * np.sum(g * Cg, axis=1), self.scale * np.sum(g * Cd, axis=1)
+
+
+def _path(objective, U_from, U_to, basis: FanBasis | None = None, points: int = 21):
+    """The commands and the objective at ``points`` steps along the way U_from -> U_to: straight
+    in the fans' thrusts when ``basis`` is given (the prior's thrust curves, each monotone), where
+    the corrected prior is convex but for what the fit bent (each fan's curve, the load slope),
+    else straight in PWM."""
+    ts = np.linspace(0.0, 1.0, points)
+    if basis is None:
+        Us = [U_from + t * (U_to - U_from) for t in ts]
+    else:
+        a0, a1 = basis.thrust(U_from)[0], basis.thrust(U_to)[0]
+        lo, hi = np.minimum(U_from, U_to), np.maximum(U_from, U_to)
+        Us = [U_from.copy()] + [basis.invert(a0 + t * (a1 - a0), lo, hi) for t in ts[1:-1]] + [U_to.copy()]
+    return Us, np.array([objective(U) for U in Us])
+
+
+def _ridge(objective, U_from, U_to, share: float, noise: float, basis=None) -> dict | None:
+    """The highest point of the objective on the way U_from -> U_to (``_path``) when it rises
+    above its value at U_from by more than ``share`` of that value and ``noise`` [N^2], and by
+    more than the way's end promises to gain: {'t', 'height', 'start', 'end'}; None when the
+    way has no such ridge."""
+    _, f = _path(objective, U_from, U_to, basis)
+    top = int(np.argmax(f))
+    if f[top] <= f[0] * (1.0 + share) + noise or f[top] - f[0] <= f[0] - f[-1]:
+        return None
+    return {'t': round(top / (len(f) - 1), 3), 'height': round(float(f[top]), 6), 'start': round(float(f[0]), 6),
+            'end': round(float(f[-1]), 6)}
+
+
+def _before_ridge(objective, U_from, U_to, share: float, noise: float, basis=None):
+    """The best command on the way U_from -> U_to (``_path``) before the objective first rises
+    above its value at U_from by ``share`` of it and ``noise``; U_to when it never does."""
+    Us, f = _path(objective, U_from, U_to, basis)
+    over = np.flatnonzero(f > f[0] * (1.0 + share) + noise)
+    if not len(over):
+        return U_to
+    return Us[int(np.argmin(f[:over[0]]))]
 
 
 def is_level(U, enabled, tol: float = 1e-6) -> bool:

@@ -578,6 +578,50 @@ def test_a_curve_risk_outside_its_range_is_refused():
         AdaptiveUpdate(curve_risk=-1.0)
 
 
+def test_the_way_between_two_commands_is_straight_in_the_fans_thrusts(rig, prior):
+    from wind_shaper.control.adaptive import _path
+    basis = FanBasis.from_term(prior, rig.key_points)
+    U0, U1 = np.full(7, 0.2), np.array([0.6, 0.1, 0.5, 0.35, 0.2, 0.8, 0.05])
+    Us, f = _path(lambda U: float(np.sum(U)), U0, U1, basis, points=11)
+    assert np.array_equal(Us[0], U0) and np.array_equal(Us[-1], U1) and len(f) == 11
+    a0, a1 = basis.thrust(U0)[0], basis.thrust(U1)[0]
+    for t, U in zip(np.linspace(0, 1, 11), Us):
+        assert basis.thrust(U)[0] == pytest.approx(a0 + t * (a1 - a0), abs=1e-6)
+    straight, _ = _path(lambda U: 0.0, U0, U1, points=3)
+    assert straight[1] == pytest.approx(0.5 * (U0 + U1))
+    # a fan's thrust is not linear in its command: the two ways differ between the ends
+    assert not np.allclose(Us[5], 0.5 * (U0 + U1), atol=1e-3)
+
+
+def _bumpy(height, end):
+    """An objective along U[0] from 0 to 1: 1 at 0, ``end`` at 1, and a bump of ``height``
+    above the straight line at 0.5."""
+    return lambda U: float(1.0 + (end - 1.0) * U[0] + height * np.exp(-((U[0] - 0.5) / 0.1) ** 2))
+
+
+def test_a_ridge_is_a_rise_on_the_way_beyond_what_its_end_promises():
+    from wind_shaper.control.adaptive import _before_ridge, _ridge
+    U0, U1 = np.zeros(2), np.array([1.0, 0.0])
+    assert _ridge(_bumpy(0.0, 0.5), U0, U1, 0.1, 0.0) is None            # downhill all the way
+    assert _ridge(_bumpy(0.05, 0.5), U0, U1, 0.1, 0.0) is None           # a rise within the share
+    ridge = _ridge(_bumpy(1.0, 0.8), U0, U1, 0.1, 0.0)
+    assert ridge['t'] == pytest.approx(0.5) and ridge['start'] == pytest.approx(1.0)
+    assert ridge['height'] == pytest.approx(1.9, abs=0.01) and ridge['end'] == pytest.approx(0.8)
+    assert _ridge(_bumpy(1.0, 0.8), U0, U1, 0.1, 1.0) is None            # within the noise
+    # a rise smaller than what the far end gains is crossed: a wrong basin is left that way
+    assert _ridge(_bumpy(0.7, 0.05), U0, U1, 0.1, 0.0) is None
+    # cut back: the best point before the way first rises past the share
+    dip_then_ridge = lambda U: float(1.0 - 0.3 * np.sin(np.pi * U[0] / 0.4) * (U[0] < 0.4)
+                                     + 2.0 * np.exp(-((U[0] - 0.6) / 0.1) ** 2))
+    assert _before_ridge(dip_then_ridge, U0, U1, 0.1, 0.0) == pytest.approx([0.2, 0.0])
+    assert np.array_equal(_before_ridge(_bumpy(0.0, 0.5), U0, U1, 0.1, 0.0), U1)
+
+
+def test_a_ridge_share_outside_its_range_is_refused():
+    with pytest.raises(ConfigError, match='ridge_share'):
+        AdaptiveUpdate(ridge_share=-0.1)
+
+
 def _maps_at_scattered_loads(basis, field, rng, n=6):
     maps = []
     for _ in range(n):
