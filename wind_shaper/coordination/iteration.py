@@ -345,6 +345,12 @@ class ShapingRun:
         check = data.info.get('warm_start', {}).get('check_text')
         if check:
             text += ('; WARNING: ' if data.info['warm_start']['check']['mismatch'] else '; ') + check
+        ridge = data.info.get('ridge')
+        if ridge:
+            start = max(float(ridge['start']), 1e-12)
+            text += (f'; the step stays on this side of a ridge the fitted model shows (a dip in the fans\' '
+                     f'curves): on the way to a field {1 - ridge["end"] / start:.0%} better it predicts one '
+                     f'{ridge["height"] / start:.1f} x worse than now')
         if data.info.get('stop'):
             text += f'; the update rule advises stopping: {data.info.get("stop_reason", "")}'
         return text

@@ -171,3 +171,13 @@ def test_with_region_sweeps_on_the_graph_sweeps_only_the_changed_region_and_fuse
     plan = again.region_plan(again.U, again.prepare()[1])
     assert plan is None or plan.share < 1
     assert again.history[-1].info.get('region', {}).get('needed') == records[-1].info.get('region', {}).get('needed')
+
+
+def test_the_done_message_says_when_a_step_stayed_before_a_fitted_dip():
+    from types import SimpleNamespace
+    data = SimpleNamespace(k=1, rmse=0.9, rmse_predicted_after=0.85, step_size=1.0, sweep=[0] * 10,
+                           info={'ridge': {'t': 0.45, 'height': 1.22, 'start': 0.86, 'end': 0.68}})
+    text = ShapingRun.done_message(data)
+    assert 'stays on this side of a ridge' in text and '21% better' in text and '1.4 x worse' in text
+    data.info = {'ridge': None}
+    assert 'ridge' not in ShapingRun.done_message(data)
