@@ -554,10 +554,13 @@ class AdaptiveUpdate:
             # basin, which only faded commissioning maps describe: the step stays in the base's
             # basin instead (Gauss-Newton from the base, cut back before any ridge left)
             way = basis if basis is not None and basis.monotone else None
-            ridge = _ridge(lambda U: objective(predict(U)[0], U), U_b, U_c, self.ridge_share, err_noise, way)
+
+            def predicted(U):
+                return objective(predict(U)[0], U)
+            ridge = _ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
             if ridge is not None:
                 U_c, pred_c, J_c, f_c = refine(*from_base)
-                U_c = _before_ridge(lambda U: objective(predict(U)[0], U), U_b, U_c, self.ridge_share, err_noise, way)
+                U_c = _before_ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
                 pred_c, J_c = predict(U_c)
                 f_c = objective(pred_c, U_c)
         U_next = self.bounds.project(U_b + self.step_fraction * (U_c - U_b), on)
