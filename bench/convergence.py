@@ -351,34 +351,103 @@ def make_plants(names, tmp: Path) -> list[Plant]:
 ALL_PLANTS = ['prior right', 'nominal', 'radius 0.20', 'unequal curves', '2 fans off', '4x4 wall', *MIXES, *UNFAMILIAR]
 
 
-def zeta_star(plant: Plant, target_values, starts: int = 40, seed: int = 1):
+def zeta_star(plant: Plant, target_values, starts: int = 40, seed: int = 1, polish: int = 3):
     """The lowest true-field MSE [N^2] over the bounded PWMs, and its commands: the best of
     ``starts`` bounded least-squares runs (every fan at 0.5, then random commands). A stall dip
     in the curves leaves local minima: on the co-flow tunnel's Gaussian, 6 and 16 starts both
-    missed an optimum that the shaping runs went below."""
+    missed an optimum that the shaping runs went below. The best ``polish`` of them are then
+    searched again, coarsely and fan by fan (``_compass``), for curves without a useful
+    derivative."""
+    residual, on, lo, hi = _true_residual(plant, target_values)
+    rng = np.random.default_rng(seed)
+    found = []
+    for s in range(starts):
+        u0 = np.full(on.sum(), 0.5) if s == 0 else rng.uniform(lo, hi, on.sum())
+        sol = least_squares(residual, u0, bounds=(lo, hi), diff_step=1e-4, xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12, max_nfev=400)
+        if np.allclose(sol.x, u0, rtol=0.0, atol=1e-9):
+            # A curve with steps (a coarse throttle) has no useful derivative: the run stopped
+            # where it started. Again, on differences across several steps (+-0.03 PWM).
+            sol = least_squares(residual, u0, jac=lambda v: _wide_jacobian(residual, v, lo, hi),
+                                bounds=(lo, hi), max_nfev=200)
+        found.append((float(np.mean(sol.fun ** 2)), sol.x))
+    found.sort(key=lambda zu: zu[0])
+    # Then a compass search from the best few, on the steps themselves; a smooth tunnel's optimum
+    # moves by nothing that matters.
+    found += [_compass(residual, u, lo, hi) for _, u in found[:polish]]
+    found.append(_compass(residual, min(found, key=lambda zu: zu[0])[1], lo, hi, pairs=True))
+    best = min(found, key=lambda zu: zu[0])
+    U = np.zeros(len(on))
+    U[on] = best[1]
+    return best[0], U
+
+
+def _true_residual(plant: Plant, target_values):
+    """(residual(u) [N] at the key points for the enabled fans' commands u, enabled, lo, hi)."""
     sim = plant.sim(0)
     setup = plant.setup
     kp = setup.geometry.key_points
     on = setup.geometry.fans.enabled
-    lo, hi = setup.shaping.u_min, setup.shaping.u_max
 
     def residual(u):
         U = np.zeros(len(on))
         U[on] = u
         return sim.true_field(U, kp) - target_values
 
-    rng = np.random.default_rng(seed)
-    best = None
-    for s in range(starts):
-        u0 = np.full(on.sum(), 0.5) if s == 0 else rng.uniform(lo, hi, on.sum())
-        sol = least_squares(residual, u0, bounds=(lo, hi), diff_step=1e-4, xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12, max_nfev=400)
-        z = float(np.mean(sol.fun ** 2))
-        if best is None or z < best[0]:
-            best = (z, sol.x)
+    return residual, on, setup.shaping.u_min, setup.shaping.u_max
+
+
+def lower_by_runs(plant: Plant, target_values, zs: float, U_star, runs: list[dict]):
+    """The best reachable error (zs [N^2], its commands U_star) checked against every command the
+    runs sent: where one of them did better, the search goes on from it (``_compass``), so that
+    no ratio is below 1 (curves with steps hide optima from ``zeta_star``). (zs, U_star)."""
+    mse = [(m, p) for r in runs for m, p in zip(r['mse'], r['pwm'])]
+    best_mse, best_pwm = min(mse, key=lambda mp: mp[0])
+    if best_mse >= zs:
+        return zs, U_star
+    residual, on, lo, hi = _true_residual(plant, target_values)
+    z, u = _compass(residual, np.asarray(best_pwm, float)[on], lo, hi, pairs=True)
     U = np.zeros(len(on))
-    U[on] = best[1]
-    return best[0], U
+    U[on] = u
+    return z, U
+
+
+def _wide_jacobian(residual, u, lo: float, hi: float, h: float = 0.03) -> np.ndarray:
+    """Central differences over +-h [PWM fraction] (one-sided at a bound): across several
+    steps of a coarse throttle, where a fine difference sees none."""
+    cols = []
+    for j in range(len(u)):
+        up, down = u.copy(), u.copy()
+        up[j], down[j] = min(u[j] + h, hi), max(u[j] - h, lo)
+        cols.append((residual(up) - residual(down)) / (up[j] - down[j]))
+    return np.stack(cols, axis=1)
+
+
+def _compass(residual, u, lo: float, hi: float, steps=(0.04, 0.02, 0.01, 0.005, 0.0025),
+             pairs: bool = False):
+    """Coordinate search: each fan in turn moved by +-h while the MSE falls, h halving; with
+    ``pairs`` every two fans also moved together and against each other (a valley across the
+    fans' axes). (MSE [N^2], commands)."""
+    n = len(u)
+    moves = [np.eye(n)[j] * sign for j in range(n) for sign in (1.0, -1.0)]
+    if pairs:
+        moves += [(np.eye(n)[i] + sign * np.eye(n)[j]) * both for i in range(n)
+                  for j in range(i + 1, n) for sign in (1.0, -1.0) for both in (1.0, -1.0)]
+    u = np.asarray(u, float).copy()
+    z = float(np.mean(residual(u) ** 2))
+    for h in steps:
+        moved = True
+        while moved:
+            moved = False
+            for move in moves:
+                trial = np.clip(u + h * move, lo, hi)
+                if np.array_equal(trial, u):
+                    continue
+                zt = float(np.mean(residual(trial) ** 2))
+                if zt < z:
+                    u, z, moved = trial, zt, True
+                    break
+    return z, u
 
 
 class _TimedTunnel:
@@ -436,7 +505,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error,
                        prior_maps=plant.prior_maps)
-    out = {'mse': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
+    out = {'mse': [], 'pwm': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
            'mismatch': None, 'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):
         c0, s0 = time.thread_time(), tunnel.cpu
@@ -444,6 +513,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
         out['cpu_s'].append(time.thread_time() - c0 - (tunnel.cpu - s0))
         true = sim.true_field(rec.pwm, kp)
         out['mse'].append(float(np.mean((true - target_values) ** 2)))
+        out['pwm'].append(np.asarray(rec.pwm, float).tolist())
         out['measured_mse'].append(float(np.mean((rec.estimate.mean - target_values) ** 2)))
         out['z'].extend(((rec.estimate.mean - true) / np.maximum(rec.estimate.std, 1e-12)).tolist())
         out['relearned'] += bool(rec.info.get('relearned'))
@@ -609,13 +679,15 @@ def main(argv=None):
                 if key not in zcache:
                     zs, U_star = zeta_star(plant, tv)
                     zcache[key] = (zs, U_star.tolist())
-                zs = zcache[key][0]
+                runs = {name: [run_method(plant, tv, cfg, seed, args.iterations, args.source)
+                               for seed in range(args.first_seed, args.first_seed + seeds)]
+                        for name, cfg in methods.items()}
+                zs, U_star = lower_by_runs(plant, tv, zcache[key][0], zcache[key][1],
+                                           [r for rs in runs.values() for r in rs])
+                zcache[key] = (zs, np.asarray(U_star, float).tolist())
                 row = {'case': key, 'plant': plant.name, 'target': spec, 'zeta_star_N2': zs,
-                       'model_error_N': plant.model_error, 'methods': {}}
-                for name, cfg in methods.items():
-                    runs = [run_method(plant, tv, cfg, seed, args.iterations, args.source)
-                            for seed in range(args.first_seed, args.first_seed + seeds)]
-                    row['methods'][name] = summarise(runs, zs)
+                       'model_error_N': plant.model_error,
+                       'methods': {name: summarise(rs, zs) for name, rs in runs.items()}}
                 rows.append(row)
                 print_row(row)
     if zpath:

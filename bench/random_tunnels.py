@@ -140,14 +140,16 @@ def benchmark_tunnel(job) -> list[dict]:
         kp = plant.setup.geometry.key_points
         for spec in targets:
             tv = plant.setup.make_target(spec).values(kp)
-            zs, _ = convergence.zeta_star(plant, tv, starts=3 if quick else 40)
+            zs, U_star = convergence.zeta_star(plant, tv, starts=3 if quick else 40)
+            runs = {name: [convergence.run_method(plant, tv, cfg, s, iterations)
+                           for s in range(first_seed, first_seed + seeds)]
+                    for name, cfg in methods.items()}
+            zs, _ = convergence.lower_by_runs(plant, tv, zs, U_star,
+                                              [r for rs in runs.values() for r in rs])
             row = {'case': f"{tunnel['name']}, {spec}", 'plant': tunnel['name'], 'target': spec,
                    'effects': tunnel['effects'], 'zeta_star_N2': zs,
-                   'model_error_N': plant.model_error, 'methods': {}}
-            for name, cfg in methods.items():
-                runs = [convergence.run_method(plant, tv, cfg, s, iterations)
-                        for s in range(first_seed, first_seed + seeds)]
-                row['methods'][name] = convergence.summarise(runs, zs)
+                   'model_error_N': plant.model_error,
+                   'methods': {name: convergence.summarise(rs, zs) for name, rs in runs.items()}}
             rows.append(row)
             convergence.print_row(row)
     return rows

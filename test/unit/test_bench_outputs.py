@@ -238,3 +238,70 @@ def test_the_tunnels_written_after_the_defaults_load_and_their_effects_do_what_t
     out = swirl.thrust(t, geo)
     assert out[order[1]] < 3.0 and out[order[0]] == 5.0
     assert np.allclose(np.delete(out, order[1]), np.delete(t, order[1]))
+
+
+def test_the_best_reachable_error_is_found_on_a_curve_with_steps():
+    """A coarse throttle makes the field a staircase of the commands: least squares stops where
+    it starts, the compass search that follows it walks the steps down to the grid's best."""
+    conv = _load('convergence')
+    target = np.array([0.31, 0.12, 0.47])
+
+    def residual(u):
+        return 0.025 * np.round(np.asarray(u) / 0.025) - target
+
+    z, u = conv._compass(residual, np.full(3, 0.6), 0.0, 0.65)
+    best = np.mean((0.025 * np.round(target / 0.025) - target) ** 2)
+    assert z == pytest.approx(best, abs=1e-12)
+    assert np.allclose(0.025 * np.round(u / 0.025), 0.025 * np.round(target / 0.025))
+
+
+def test_the_second_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-01b: every file loads; the coarse throttle rounds each
+    command to its step, the inlet assist raises a fan's thrust only when its neighbours run,
+    and the ring suction lowers the field on the axis by a share of the edge fans' thrust."""
+    conv = _load('convergence')
+    folder = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / 'written_2026-12-01b'
+    names = [conv.load_tunnel_file(p)[0] for p in sorted(folder.glob('*.yaml'))]
+    assert len(names) == 4 and len(set(names)) == 4
+    from wind_shaper.core.geometry import TunnelGeometry
+    from wind_shaper.sim import make_effect
+    geo = TunnelGeometry.paper_rig()
+    pos = np.asarray(geo.fans.positions, float)
+    steps = make_effect('throttle_steps', step=0.025)
+    assert np.allclose(steps.command(np.array([0.011, 0.013, 0.5, 0.6374]), geo),
+                       [0.0, 0.025, 0.5, 0.625])
+    assist = make_effect('inlet_assist', assist=0.5, thrust_ref=2.0)
+    alone = np.zeros(len(pos))
+    alone[0] = 3.0
+    assert np.allclose(assist.thrust(alone, geo), alone)          # idle neighbours: no help
+    busy = np.full(len(pos), 2.0)
+    assert np.allclose(assist.thrust(busy, geo), busy * 1.25)     # 1 + 0.5 * 2 / (2 + 2)
+    suction = make_effect('ring_suction', share=0.3, width=0.1)
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    edge = np.hypot(*pos.T) > 1e-3
+    thrust = np.where(edge, 2.0, 5.0)
+    jets = [JetGroup(FlatTop(2.0), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, int))]
+    deficit = suction.sources(jets, thrust, geo)[-1]
+    on_axis = deficit.density(np.zeros((1, 2)))[0]
+    far = deficit.density(np.array([[0.5, 0.0]]))[0]
+    assert on_axis == pytest.approx(-0.3 * 2.0) and abs(far) < 1e-6
+
+
+def test_no_ratio_is_below_one_where_a_run_went_below_the_search():
+    """A run that reached a lower error than the search for the best reachable one becomes that
+    search's start: the best is then at or below every run's point; without such a run it stays."""
+    from types import SimpleNamespace
+    conv = _load('convergence')
+    target = np.array([0.31, 0.12, 0.47])
+    field = SimpleNamespace(true_field=lambda U, kp: 0.025 * np.round(np.asarray(U) / 0.025))
+    plant = SimpleNamespace(
+        sim=lambda seed: field,
+        setup=SimpleNamespace(geometry=SimpleNamespace(key_points=None,
+                                                       fans=SimpleNamespace(enabled=np.ones(3, bool))),
+                              shaping=SimpleNamespace(u_min=0.0, u_max=0.65)))
+    searched = (0.01, np.array([0.4, 0.4, 0.4]))
+    run = {'mse': [0.02, 0.003], 'pwm': [[0.5, 0.5, 0.5], [0.3, 0.15, 0.45]]}
+    z, U = conv.lower_by_runs(plant, target, *searched, [run])
+    assert z <= 0.003 and z == pytest.approx(np.mean((field.true_field(U, None) - target) ** 2))
+    worse = {'mse': [0.02, 0.011], 'pwm': [[0.5, 0.5, 0.5], [0.3, 0.3, 0.3]]}
+    assert conv.lower_by_runs(plant, target, *searched, [worse])[0] == 0.01
