@@ -210,18 +210,24 @@ def test_a_gap_is_called_behind_with_confidence_only_where_the_seeds_could_not_g
     assert conv.behind_confident(tight, runs(0.01)[:7])['behind']  # other seed counts are fine
 
 
+def _written_tunnels_load(folder: str):
+    """Every tunnel file of bench/tunnels/FOLDER loads (its plugin registered, its effects
+    built), four of them with names of their own; (the paper rig, its hub positions [m])."""
+    conv = _load('convergence')
+    path = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / folder
+    names = [conv.load_tunnel_file(p)[0] for p in sorted(path.glob('*.yaml'))]
+    assert len(names) == 4 and len(set(names)) == 4
+    from wind_shaper.core.geometry import TunnelGeometry
+    geo = TunnelGeometry.paper_rig()
+    return geo, np.asarray(geo.fans.positions, float)
+
+
 def test_the_tunnels_written_after_the_defaults_load_and_their_effects_do_what_they_say():
     """bench/tunnels/written_2026-12-01: every file loads (its plugin registered, its effects
     built); the plugin's lean moves the field only when the thrust is unbalanced, away from the
     strong side, and its pre-swirl costs a fan thrust only where its neighbour runs stronger."""
-    conv = _load('convergence')
-    folder = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / 'written_2026-12-01'
-    names = [conv.load_tunnel_file(p)[0] for p in sorted(folder.glob('*.yaml'))]
-    assert len(names) == 4 and len(set(names)) == 4
-    from wind_shaper.core.geometry import TunnelGeometry
+    geo, pos = _written_tunnels_load('written_2026-12-01')
     from wind_shaper.sim import make_effect
-    geo = TunnelGeometry.paper_rig()
-    pos = np.asarray(geo.fans.positions, float)
     lean = make_effect('plume_lean', lean=0.4)
     points = np.zeros((1, 2))
     assert np.allclose(lean.warp(points, np.full(len(pos), 3.0), geo), points)   # balanced
@@ -259,14 +265,8 @@ def test_the_second_written_tunnels_load_and_their_effects_do_what_they_say():
     """bench/tunnels/written_2026-12-01b: every file loads; the coarse throttle rounds each
     command to its step, the inlet assist raises a fan's thrust only when its neighbours run,
     and the ring suction lowers the field on the axis by a share of the edge fans' thrust."""
-    conv = _load('convergence')
-    folder = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / 'written_2026-12-01b'
-    names = [conv.load_tunnel_file(p)[0] for p in sorted(folder.glob('*.yaml'))]
-    assert len(names) == 4 and len(set(names)) == 4
-    from wind_shaper.core.geometry import TunnelGeometry
+    geo, pos = _written_tunnels_load('written_2026-12-01b')
     from wind_shaper.sim import make_effect
-    geo = TunnelGeometry.paper_rig()
-    pos = np.asarray(geo.fans.positions, float)
     steps = make_effect('throttle_steps', step=0.025)
     assert np.allclose(steps.command(np.array([0.011, 0.013, 0.5, 0.6374]), geo),
                        [0.0, 0.025, 0.5, 0.625])
