@@ -3,9 +3,11 @@ fans can do, sweep by sweep, and the plate time it took.
 
 For every case (plant x target) the benchmark first finds zeta*, the lowest true-field error
 [N^2] the fans can reach on the simulated plant, by optimising its noise-free field directly over
-the bounded PWMs (scipy least_squares from U = 0.5 and several random starts; the best is kept).
-Each method then runs the shaping loop on the noisy simulator for every seed, and every
-iteration is scored on the noise-free field at the key points.
+the bounded PWMs (scipy least_squares from U = 0.5 and several random starts, then a compass
+search from the best; the best is kept). Each method then runs the shaping loop on the noisy
+simulator for every seed, and every iteration is scored on the noise-free field at the key
+points; where a run's commands did better than zeta*, the search goes on from them and zeta* is
+the new best (so no ratio is below 1).
 
 Methods:
   paper       Algorithm 1 (the paper's protocol): U0 = 0.5, 1000-sample sweeps, clipping
