@@ -357,9 +357,10 @@ def zeta_star(plant: Plant, target_values, starts: int = 40, seed: int = 1, poli
     """The lowest true-field MSE [N^2] over the bounded PWMs, and its commands: the best of
     ``starts`` bounded least-squares runs (every fan at 0.5, then random commands). A stall dip
     in the curves leaves local minima: on the co-flow tunnel's Gaussian, 6 and 16 starts both
-    missed an optimum that the shaping runs went below. The best ``polish`` of them are then
-    searched again, coarsely and fan by fan (``_compass``), for curves without a useful
-    derivative."""
+    missed an optimum that the shaping runs went below. For curves without a useful derivative
+    (a coarse throttle's steps), a start the run leaves where it was is solved again on
+    differences across several steps (``_wide_jacobian``); then the best ``polish`` results get
+    a search fan by fan (``_compass``), and the best of all one in pairs of fans."""
     residual, on, lo, hi = _true_residual(plant, target_values)
     rng = np.random.default_rng(seed)
     found = []
