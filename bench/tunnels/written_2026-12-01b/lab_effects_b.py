@@ -5,6 +5,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from wind_shaper.core.geometry import neighbour_pairs
 from wind_shaper.sim import register_effects
 from wind_shaper.sim.effects import HiddenEffect
 from wind_shaper.sim.physics import FlatTop, JetGroup
@@ -45,11 +46,10 @@ class InletAssist(HiddenEffect):
     bounds: ClassVar = {'assist': (0.0, 2.0), 'thrust_ref': (0.1, 100.0), 'reach': (1.0, 3.0)}
 
     def thrust(self, t, geometry):
-        pos = np.asarray(geometry.fans.positions, float)
         on = np.flatnonzero(geometry.fans.enabled)
-        d = np.hypot(*(pos[on, None, :] - pos[None, on, :]).transpose(2, 0, 1))
-        np.fill_diagonal(d, np.inf)
-        near = d <= self.reach * d.min()
+        pairs = neighbour_pairs(np.asarray(geometry.fans.positions, float)[on], self.reach)
+        near = np.zeros((len(on), len(on)), bool)
+        near[pairs[:, 0], pairs[:, 1]] = near[pairs[:, 1], pairs[:, 0]] = True
         out = t.copy()
         for a, j in enumerate(on):
             if near[a].any():
