@@ -257,7 +257,11 @@ def test_a_stream_requested_again_mid_stream_is_taken_whole(rig, wait_for):
     client.request_stream()
     assert wait_for(lambda: 1 in seen and len(seen) - seen.index(1) >= 200, 5.0)
     after = seen[seen.index(1):]
-    assert after == list(range(1, len(after) + 1))
+    # the new stream is taken in order from 1; numbers may be missing only where the sensor
+    # skipped them (the host stalled) or the datagram was lost, and those are counted lost
+    assert after[0] == 1 and all(b > a for a, b in zip(after, after[1:])), after[:50]
+    gaps = sum(b - a - 1 for a, b in zip(after, after[1:]))
+    assert gaps <= client.stats.lost, (gaps, client.stats)
     assert client.stats.stale == 0 and client.stats.resyncs >= 1
 
 
