@@ -711,7 +711,11 @@ KS = (0, 1, 2, 3, 4, 6, 12)
 
 
 def _value(text: str):
-    return json.loads(text) if text[:1] in '0123456789-[{tf' else text
+    """A --set value: JSON where it parses (numbers, true/false, lists), the text otherwise."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
 
 
 def with_settings(setup, estimator=(), sweep=()):
