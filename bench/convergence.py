@@ -656,7 +656,7 @@ def main(argv=None):
         key, _, value = kv.partition('=')
         for cfg in methods.values():
             if cfg['rule']['method'] == 'adaptive':
-                cfg['rule'][key] = json.loads(value) if value[:1] in '0123456789-[{tf' else value
+                cfg['rule'][key] = _value(value)
     OWN_TUNNELS.clear()
     for path in args.tunnel:
         name, effects, targets = load_tunnel_file(path)
