@@ -305,3 +305,10 @@ def test_no_ratio_is_below_one_where_a_run_went_below_the_search():
     assert z <= 0.003 and z == pytest.approx(np.mean((field.true_field(U, None) - target) ** 2))
     worse = {'mse': [0.02, 0.011], 'pwm': [[0.5, 0.5, 0.5], [0.3, 0.3, 0.3]]}
     assert conv.lower_by_runs(plant, target, *searched, [worse])[0] == 0.01
+
+
+def test_a_set_value_is_json_where_it_parses_and_text_otherwise():
+    # --set secant_space=thrust once failed: a word starting with t was taken for JSON true
+    conv = _load('convergence')
+    assert conv._value('0.5') == 0.5 and conv._value('true') is True and conv._value('[1, 2]') == [1, 2]
+    assert conv._value('thrust') == 'thrust' and conv._value('footprint') == 'footprint'
