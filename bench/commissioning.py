@@ -50,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 from wind_shaper.app import Setup, shape_on_sim  # noqa: E402
 from wind_shaper.experiment import make_design  # noqa: E402
 from wind_shaper.model import CalibrationPlan, collect_calibration, fit_model as fit_held, paper_prior  # noqa: E402
-from wind_shaper.workbench.calibrate import calibrate_from_sweeps  # noqa: E402
+from wind_shaper.workbench.calibrate import calibrate_default_prior  # noqa: E402
 from wind_shaper.workbench.data import from_sim, load_sweeps  # noqa: E402
 
 COUNTS = (3, 6, 12)
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
         log(f'held through the graph: {rows[-1]}')
     for n, (data, wall) in designs.items():
         t0 = time.perf_counter()
-        cal = calibrate_from_sweeps(data, paper_prior(fans))
+        cal = calibrate_default_prior(data, fans)
         sweep_s = args.sweep_s if not args.in_process else 1000 / rate
         rows.append({'arm': f'designed lhs:{n}', 'positions': None, 'plate_s': n * sweep_s,
                      'wall_s': wall, 'compute_s': time.perf_counter() - t0,

@@ -118,12 +118,12 @@ def _cmd_calibrate(args) -> int:
 
 
 def _calibrate_from_data(setup, args) -> int:
-    from ..model import paper_prior
-    from ..workbench.calibrate import calibrate_from_sweeps
+    from ..workbench.calibrate import calibrate_default_prior, calibrate_from_sweeps
     from ..workbench.data import load_sweeps
     fans = setup.geometry.fans
-    prior = setup.load_model(args.model) if args.model else paper_prior(fans)
-    cal = calibrate_from_sweeps(load_sweeps(args.data, fans.names), prior)
+    data = load_sweeps(args.data, fans.names)
+    cal = (calibrate_from_sweeps(data, setup.load_model(args.model)) if args.model
+           else calibrate_default_prior(data, fans))
     return _report_calibration(cal, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml',
                                setup)
 
@@ -154,6 +154,9 @@ def _report_calibration(cal, out, setup) -> int:
     print(f'fitted {cal.model!r} on {cal.n_sweeps} sweeps of {cal.source}')
     print(f'RMSE {cal.fit.rmse:.4f} N on all sweeps; {cal.heldout_rmse:.4f} N on the held-out sweeps '
           f'({", ".join(cal.held_out)}) of a fit on the others')
+    if cal.compared:
+        chosen, other = cal.compared
+        print(f'kept {chosen[0]} (held-out RMSE {chosen[1]:.4f} N) over {other[0]} ({other[1]:.4f} N)')
     for name, value, std in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std):
         print(f'  {cal.model.display_name(name):<32} {value:10.4f} +- {std:.4f}')
     print(f'{kept} of the sweeps kept as field maps for every run\'s update, its first step and '
@@ -223,7 +226,8 @@ def build_parser() -> argparse.ArgumentParser:
                         'collect`, a run folder or a shape report')
     p.add_argument('--model', type=Path, default=None,
                    help='with --data or --sim --design: the model whose free parameters are fitted '
-                        '(default: the paper\'s prior)')
+                        '(default: the paper\'s prior, and where the whole field lands if that '
+                        'predicts the held-out sweeps better)')
     p.add_argument('--sim', action='store_true', help='collect the held-plate batch on the simulated '
                                                       'tunnel and fit the paper\'s prior to it')
     p.add_argument('--design', default=None, metavar='SPEC',

@@ -14,8 +14,8 @@ from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batch
                       param_slices, refix, set_fixed, term_label, walk, wrap)
 from .fan_effects import ALL_FANS, FanCurve, FanGain, FanPush, FanShift, FanWrapper
 from .footprint_effects import FanElongation, FanShape, FanWidth
-from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
-                           SwirlQuadratic, WallLayer)
+from .flow_effects import (Background, DeadBand, FieldShift, JetInteraction, JetInteractionPower, Swirl,
+                           SwirlQuadratic, WallLayer, sweep_prior)
 from .swirl_forms import SWIRL_LAWS, SwirlFollows
 from .discrepancy import MODE_NAMES, CommandScale, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_error, model_from_text, save_model
@@ -27,7 +27,7 @@ __all__ = [
     'Term', 'Hyper', 'Sum', 'Product', 'TERMS', 'register_term', 'term_from_dict',
     'finite_difference_jacobian',
     # prior: the paper's coarse prior
-    'FanJets', 'CentralRing', 'paper_prior', 'POLY_BOUNDS', 'SIGMA_BOUNDS',
+    'FanJets', 'CentralRing', 'paper_prior', 'sweep_prior', 'POLY_BOUNDS', 'SIGMA_BOUNDS',
     # fanwise: the fan-resolved protocol, tree helpers, the wrapper base
     'Wrapper', 'wrap', 'fan_part', 'fan_thrust', 'fan_width', 'fan_landing', 'is_fan_sum',
     'has_fan_parts', 'fan_part_batched', 'fan_thrust_batched', 'walk', 'param_slices', 'find_term',
@@ -36,7 +36,7 @@ __all__ = [
     'FanWrapper', 'ALL_FANS', 'FanGain', 'FanShift', 'FanPush', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
-    'WallLayer',
+    'WallLayer', 'FieldShift',
     # swirl_forms: other laws of the swirl family's angle
     'SwirlFollows', 'SWIRL_LAWS',
     # discrepancy: what the library does not explain, without physics

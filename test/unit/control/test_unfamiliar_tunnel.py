@@ -214,8 +214,7 @@ def _commissioned(effect_specs, design_spec: str = 'lhs:6+level', without: tuple
     with ``effect_specs`` from the designed sweeps ``design_spec``, as the commissioning guide
     says; ``without``: labels of the design's sweeps left out."""
     from wind_shaper.experiment.design import make_design
-    from wind_shaper.model import paper_prior
-    from wind_shaper.workbench.calibrate import calibrate_from_sweeps, commissioning_maps
+    from wind_shaper.workbench.calibrate import calibrate_default_prior, commissioning_maps
     from wind_shaper.workbench.data import from_sim
     setup = Setup.load()
     shaping, effects = setup.shaping, list(effects_from_config(effect_specs))
@@ -223,7 +222,7 @@ def _commissioned(effect_specs, design_spec: str = 'lhs:6+level', without: tuple
     kept = [i for i, label in enumerate(design.labels) if label not in without]
     data = from_sim(setup.make_sim(seed=0, effects=effects), design.commands[kept],
                     n_samples=shaping.samples_per_sweep)
-    cal = calibrate_from_sweeps(data, paper_prior(setup.geometry.fans))
+    cal = calibrate_default_prior(data, setup.geometry.fans)
     return setup, effects, cal, commissioning_maps(data, shaping.make_estimator(cal.model),
                                                    setup.geometry.key_points)
 
