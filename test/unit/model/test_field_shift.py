@@ -86,3 +86,18 @@ def test_commissioning_keeps_the_shift_where_the_field_is_displaced_and_only_the
         assert np.hypot(cal.model.dx - shift[0], cal.model.dy - shift[1]) < 0.01
     else:
         assert not isinstance(cal.model, FieldShift) and 'shifted' in other
+
+
+def test_the_workbench_puts_a_fans_finding_inside_the_shift(rig, rng):
+    """A model calibrated with the shift is extended by the workbench like any other: a per-fan
+    term goes around the fans' core, inside the shift, so the finding moves with the field."""
+    from wind_shaper.model import FanGain, walk
+    from wind_shaper.workbench.library import apply_candidate, default_library
+    moved = FieldShift(rig.fans, _prior(rig.fans), dx=0.04, dy=-0.02)
+    cands = {c.name: c for c in default_library().candidates(moved, rig)}
+    extended = apply_candidate(moved, cands['fan_gain[HM2]'], gain=0.8)
+    assert isinstance(extended, FieldShift) and (extended.dx, extended.dy) == (0.04, -0.02)
+    assert any(isinstance(t, FanGain) for t in walk(extended.inner))
+    U = rng.uniform(0.1, 0.7, rig.fans.n_fans)
+    expected = FanGain(rig.fans, _prior(rig.fans), fan='HM2', gain=0.8)(U, rig.key_points - [0.04, -0.02])
+    np.testing.assert_allclose(extended(U, rig.key_points), expected)
