@@ -34,12 +34,14 @@ def test_its_jacobians_match_finite_differences(rig, rng):
     np.testing.assert_allclose(moved.sparse_jacobian(U, rig.key_points, 1e-12).toarray(), J, atol=1e-8)
 
 
-def test_it_round_trips_through_a_model_file_and_its_parameters(rig, rng):
+def test_it_round_trips_through_a_model_file_and_its_parameters(rig, rng, tmp_path):
+    from wind_shaper.model import load_model, save_model
     moved = FieldShift(rig.fans, _prior(rig.fans), dx=0.02, dy=0.01)
     assert TERMS['field_shift'] is FieldShift
-    again = term_from_dict(moved.to_dict(), rig.fans)
     U = rng.uniform(0.1, 0.7, rig.fans.n_fans)
-    np.testing.assert_allclose(again(U, rig.key_points), moved(U, rig.key_points))
+    for again in (term_from_dict(moved.to_dict(), rig.fans),
+                  load_model(save_model(tmp_path / 'prior.yaml', moved), rig.fans)):
+        np.testing.assert_allclose(again(U, rig.key_points), moved(U, rig.key_points))
     assert moved.theta_names[-2:] == ['field_shift.dx', 'field_shift.dy']
     bumped = moved.with_theta(np.concatenate([moved.theta[:-2], [0.05, -0.02]]))
     assert (bumped.dx, bumped.dy) == (0.05, -0.02)
