@@ -264,10 +264,10 @@ class FanBasis:
 
 def _fan_polynomials(term):
     """(n_fans, 3) PWM-to-force polynomial c0 + c1 U + c2 U^2 of each fan, if ``term`` is the
-    paper's prior (FanJets, CentralRing and sums of them, each fan in one term, the whole
-    possibly moved by a ``FieldShift``); else None.
+    paper's prior (FanJets, CentralRing and sums of them, each fan in one term, jets possibly
+    moved by a ``FanShift``, as ``model.sweep_prior`` moves them all); else None.
     Lets a 1,296-fan wall read every fan's curve in O(n) instead of O(n^2) term evaluations."""
-    from ..model import CentralRing, FanJets, FieldShift, Sum
+    from ..model import CentralRing, FanJets, FanShift, Sum
     n = term.n_fans
     out = np.zeros((n, 3))
     owner = np.zeros(n, dtype=int)
@@ -276,7 +276,7 @@ def _fan_polynomials(term):
         t = stack.pop()
         if isinstance(t, Sum):
             stack += [t.k1, t.k2]
-        elif type(t) is FieldShift:   # moves where the jets land, not the fans' curves
+        elif type(t) is FanShift:   # moves where jets land, not the fans' curves
             stack.append(t.inner)
         elif type(t) is FanJets:
             members = np.array([g in t.groups for g in t.fans.groups])

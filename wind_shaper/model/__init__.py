@@ -12,10 +12,10 @@ from .prior import POLY_BOUNDS, SIGMA_BOUNDS, CentralRing, FanJets, paper_prior
 from .fanwise import (PLATE_SIDE, Wrapper, fan_landing, fan_part, fan_part_batched, fan_thrust,
                       fan_thrust_batched, fan_width, find_term, has_fan_parts, is_fan_sum,
                       param_slices, refix, set_fixed, term_label, walk, wrap)
-from .fan_effects import ALL_FANS, FanCurve, FanGain, FanPush, FanShift, FanWrapper
+from .fan_effects import ALL_FANS, FanCurve, FanGain, FanPush, FanShift, FanWrapper, sweep_prior
 from .footprint_effects import FanElongation, FanShape, FanWidth
-from .flow_effects import (Background, DeadBand, FieldShift, JetInteraction, JetInteractionPower, Swirl,
-                           SwirlQuadratic, WallLayer, sweep_prior)
+from .flow_effects import (Background, DeadBand, JetInteraction, JetInteractionPower, Swirl,
+                           SwirlQuadratic, WallLayer)
 from .swirl_forms import SWIRL_LAWS, SwirlFollows
 from .discrepancy import MODE_NAMES, CommandScale, Discrepancy, FieldFormula, command_features, feature_words
 from .modelfile import FORMAT_VERSION, load_model, model_error, model_from_text, save_model
@@ -36,7 +36,7 @@ __all__ = [
     'FanWrapper', 'ALL_FANS', 'FanGain', 'FanShift', 'FanPush', 'FanWidth', 'FanElongation', 'FanCurve', 'FanShape',
     # flow_effects: whole-flow candidate effects
     'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
-    'WallLayer', 'FieldShift',
+    'WallLayer',
     # swirl_forms: other laws of the swirl family's angle
     'SwirlFollows', 'SWIRL_LAWS',
     # discrepancy: what the library does not explain, without physics

@@ -19,12 +19,13 @@ from ..core.errors import ConfigError
 from ..core.geometry import FanArray
 from .fanwise import Wrapper, fan_landing, fan_part_batched, fan_thrust_batched, is_fan_sum
 from .memo import remember
-from .terms import Hyper, register_term
+from .prior import paper_prior
+from .terms import Hyper, Term, register_term
 
 #: The ``group`` that selects every enabled fan (one value shared by all).
 ALL_FANS = 'all'
 
-__all__ = ['ALL_FANS', 'FanWrapper', 'FanGain', 'FanShift', 'FanPush', 'FanCurve']
+__all__ = ['ALL_FANS', 'FanWrapper', 'FanGain', 'FanShift', 'FanPush', 'FanCurve', 'sweep_prior']
 
 
 class FanWrapper(Wrapper):
@@ -232,6 +233,18 @@ class FanShift(_MovedJet):
         vals = self.shift.reshape(-1, 2)
         text = self._fans_text(vals, lambda s: f'({100 * s[0]:+.1f}, {100 * s[1]:+.1f}) cm')
         return f'FanShift({text}) o ({self.inner!r})'
+
+
+def sweep_prior(fans: FanArray) -> Term:
+    """The paper's prior (``paper_prior``) with every enabled fan's jet moved by one shared
+    shift (``FanShift`` of the group ``all``): where the whole field lands, which a draft across
+    the tunnel or the motion capture's origin off the tunnel's axis displaces. The paper's prior
+    puts every jet on its fan's hub, so a field displaced as a whole bends its fitted gains and
+    widths instead, and the shaping loop's per-fan fit, which moves each jet by a few centimetres
+    at most, cannot take that back. `calibrate --data` fits it beside the paper's prior and keeps
+    the one that predicts the held-out sweeps better
+    (``workbench.calibrate.calibrate_default_prior``)."""
+    return FanShift(fans, paper_prior(fans), group=ALL_FANS)
 
 
 @register_term

@@ -27,11 +27,10 @@ from ..core.geometry import FanArray, neighbour_pairs
 from .fanwise import (PLATE_SIDE, Wrapper, _full, fan_landing, fan_part_batched, fan_thrust_batched,
                       fan_width)
 from .memo import remember
-from .prior import paper_prior
 from .terms import Hyper, Term, register_term
 
-__all__ = ['FieldShift', 'sweep_prior', 'Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower',
-           'DeadBand', 'Background', 'WallLayer']
+__all__ = ['Swirl', 'SwirlQuadratic', 'JetInteraction', 'JetInteractionPower', 'DeadBand', 'Background',
+           'WallLayer']
 
 _EPS_T2 = 1e-4  # [N^2] regularises sqrt(T_i T_j) (and its power) at zero thrust
 _DZ = 1e-5      # [m] spatial step of Swirl's central differences
@@ -367,55 +366,6 @@ class DeadBand(Wrapper):
     def __repr__(self):
         return (f'DeadBand(U_eff = {self.saturation:.3g} clip((U - {self.threshold:.3g}) / '
                 f'{self.saturation - self.threshold:.3g}, 0, 1)) o ({self.inner!r})')
-
-
-@register_term
-class FieldShift(Wrapper):
-    """Hypothesis: the whole field lands displaced by (dx, dy) [m, tunnel frame] from where
-    the fans' hubs put it: a steady draft across the top of the tunnel, or the motion capture's
-    origin a few centimetres off the tunnel's axis (every position the plate reports is off by
-    the same vector). Phi'(U, z) = Phi(U, z - d). Bounds -0.2..0.2 m each; 0 = none. Detect: a
-    residual like every fan's footprint's slope along one direction, whatever the commands."""
-
-    kind = 'field_shift'
-    hypers = (Hyper('dx', 1, (-0.2, 0.2)), Hyper('dy', 1, (-0.2, 0.2)))
-
-    def __init__(self, fans: FanArray, term, dx: float = 0.0, dy: float = 0.0, fixed=()):
-        self._init_inner(fans, term)
-        self.dx, self.dy = float(dx), float(dy)
-        self._init_hypers(fixed)
-        self._check_bounds()
-
-    def _moved(self, Z):
-        """The points z - d the wrapped field is read at (remembered for read-only Z)."""
-        d = np.array([self.dx, self.dy])
-        return remember(Z, ('field_shift', self.dx, self.dy), lambda: np.asarray(Z, float) - d)
-
-    def _value_and_grad(self, U, Z, jacobian):
-        return self.inner._value_and_grad(U, self._moved(Z), jacobian)
-
-    def fan_part(self, U, Z, j, jacobian):
-        return fan_part_batched(self.inner, U, self._moved(Z), j, jacobian)
-
-    def fan_landing(self, j):
-        return fan_landing(self.inner, j) + np.array([self.dx, self.dy])
-
-    def sparse_jacobian(self, U, Z, tol: float = 1e-6):
-        return self.inner.sparse_jacobian(U, self._moved(Z), tol)
-
-    def __repr__(self):
-        return f'FieldShift({100 * self.dx:.1f}, {100 * self.dy:.1f} cm) o ({self.inner!r})'
-
-
-def sweep_prior(fans: FanArray) -> Term:
-    """The paper's prior (``paper_prior``) with where the whole field lands free as well
-    (``FieldShift``: a draft across the tunnel, the motion capture's origin off the tunnel's
-    axis). The paper's prior puts every jet on its fan's hub, so a field displaced as a whole
-    bends its fitted gains and widths instead, and the shaping loop's per-fan fit, which moves
-    each jet by a few centimetres at most, cannot take that back. `calibrate --data` fits it
-    beside the paper's prior and keeps the one that predicts the held-out sweeps better
-    (``workbench.calibrate.calibrate_default_prior``)."""
-    return FieldShift(fans, paper_prior(fans))
 
 
 # =============================================================================================

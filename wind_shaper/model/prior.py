@@ -1,6 +1,6 @@
 """The paper's coarse physical prior Phi_pr(U, z): the edge fans' jets (``FanJets``) plus the
 central fan's ring (``CentralRing``), and ``paper_prior``, which builds it for a fan array
-(``flow_effects.sweep_prior``: the same with the whole field's landing point free).
+(``fan_effects.sweep_prior``: the same with where the whole field lands free).
 
 Both are terms (``wind_shaper.model.terms``) registered with ``register_term``. Units: positions
 [m, tunnel frame], forces [N], commands U [fraction 0..1 of full PWM].

@@ -30,7 +30,7 @@ __all__ = ['Calibration', 'calibrate_from_sweeps', 'calibrate_default_prior', 'c
 
 #: Fewer sweeps than this cannot both fit a prior and hold some out to grade it.
 MIN_SWEEPS = 3
-#: The whole field's landing point (``model.FieldShift``) joins the default prior only when it
+#: Where the whole field lands (``model.sweep_prior``) joins the default prior only when it
 #: lowers the held-out RMSE by at least this share. A displaced field does by far more (17-39 %
 #: on the simulator's tunnels with a side draft); where nothing displaces it, the two parameters
 #: take up some of the paper prior's other misfit on the fitted sweeps (a centimetre or less)
