@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..model import Term, save_model
+from ..model import Term, paper_prior, save_model, sweep_prior
 from ..model.modelfile import MAPS_KEY, commissioning_maps_section, write_model_doc
 from .data import SweepSet
 from .errors import DataSourceError
@@ -95,11 +95,10 @@ def calibrate_default_prior(data: SweepSet, fans, **fit_options) -> Calibration:
     tunnel's axis), each fitted as ``calibrate_from_sweeps`` does (``fit_options`` are its), the
     second kept when its held-out RMSE is lower by ``SHIFT_GAIN`` or more. ``compared`` says what
     each predicted."""
-    from ..model import paper_prior, sweep_prior
     plain = calibrate_from_sweeps(data, paper_prior(fans), **fit_options)
     moved = calibrate_from_sweeps(data, sweep_prior(fans), **fit_options)
-    names = ('the paper\'s prior', 'the paper\'s prior with the field shifted')
-    scores = ((names[0], plain.heldout_rmse), (names[1], moved.heldout_rmse))
+    scores = (("the paper's prior", plain.heldout_rmse),
+              ("the paper's prior with the field shifted", moved.heldout_rmse))
     if moved.heldout_rmse <= (1.0 - SHIFT_GAIN) * plain.heldout_rmse:
         return replace(moved, compared=scores[::-1])
     return replace(plain, compared=scores)
