@@ -210,13 +210,13 @@ def test_a_gap_is_called_behind_with_confidence_only_where_the_seeds_could_not_g
     assert conv.behind_confident(tight, runs(0.01)[:7])['behind']  # other seed counts are fine
 
 
-def _written_tunnels_load(folder: str):
+def _written_tunnels_load(folder: str, count: int = 4):
     """Every tunnel file of bench/tunnels/FOLDER loads (its plugin registered, its effects
-    built), four of them with names of their own; (the paper rig, its hub positions [m])."""
+    built), ``count`` of them with names of their own; (the paper rig, its hub positions [m])."""
     conv = _load('convergence')
     path = Path(__file__).resolve().parents[2] / 'bench' / 'tunnels' / folder
     names = [conv.load_tunnel_file(p)[0] for p in sorted(path.glob('*.yaml'))]
-    assert len(names) == 4 and len(set(names)) == 4
+    assert len(names) == count and len(set(names)) == count
     from wind_shaper.core.geometry import TunnelGeometry
     geo = TunnelGeometry.paper_rig()
     return geo, np.asarray(geo.fans.positions, float)
@@ -285,6 +285,42 @@ def test_the_second_written_tunnels_load_and_their_effects_do_what_they_say():
     on_axis = deficit.density(np.zeros((1, 2)))[0]
     far = deficit.density(np.array([[0.5, 0.0]]))[0]
     assert on_axis == pytest.approx(-0.3 * 2.0) and abs(far) < 1e-6
+
+
+def test_the_third_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-02: every file loads; the backflow sits over a slow fan's
+    hub, grows with the other fans' thrust and halves where the fan gives thrust_ref; the
+    necking moves every off-axis jet towards the axis by the load, the central one not at all."""
+    geo, pos = _written_tunnels_load('written_2026-12-02', count=3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    back = make_effect('idle_backflow', share=0.2, width=0.05, thrust_ref=1.0)
+    thrust = np.full(n, 2.0)
+    thrust[0] = 0.0                                   # an idle fan among busy ones
+    thrust[1] = 1.0                                   # one at thrust_ref
+    deficit = back.sources([_no_jets()], thrust, geo)[-1]
+    idle = deficit.density(pos[:1])[0]
+    others = (thrust.sum() - thrust[0]) / (n - 1)
+    assert idle == pytest.approx(-0.2 * others, rel=1e-3)     # its own patch; the others' are far
+    half = deficit.density(pos[1:2])[0]
+    assert half == pytest.approx(-0.2 * (thrust.sum() - 1.0) / (n - 1) * 0.5, rel=1e-3)
+    lone = np.zeros(n)
+    lone[2] = 3.0                                     # one fan runs: the idle ones let air back
+    field = back.sources([_no_jets()], lone, geo)[-1].density(pos)
+    assert field[2] == pytest.approx(0.0, abs=1e-9)   # nothing else runs to push back through it
+    assert np.allclose(np.delete(field, 2), -0.2 * 3.0 / (n - 1), rtol=1e-3)
+    neck = make_effect('plume_necking', pull=0.3, thrust_ref=3.0)
+    jets = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+    moved = neck.sources([jets], np.full(n, 3.0), geo)[0].centres
+    np.testing.assert_allclose(moved, pos * (1 - 0.3 * 0.5))  # T_mean = thrust_ref: half of pull
+    idle_jets = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+    np.testing.assert_allclose(neck.sources([idle_jets], np.zeros(n), geo)[0].centres, pos)
+
+
+def _no_jets():
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    return JetGroup(FlatTop(2.0), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, int))
 
 
 def test_no_ratio_is_below_one_where_a_run_went_below_the_search():
