@@ -277,11 +277,9 @@ def test_the_second_written_tunnels_load_and_their_effects_do_what_they_say():
     busy = np.full(len(pos), 2.0)
     assert np.allclose(assist.thrust(busy, geo), busy * 1.25)     # 1 + 0.5 * 2 / (2 + 2)
     suction = make_effect('ring_suction', share=0.3, width=0.1)
-    from wind_shaper.sim.physics import FlatTop, JetGroup
     edge = np.hypot(*pos.T) > 1e-3
     thrust = np.where(edge, 2.0, 5.0)
-    jets = [JetGroup(FlatTop(2.0), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, int))]
-    deficit = suction.sources(jets, thrust, geo)[-1]
+    deficit = suction.sources([_no_jets()], thrust, geo)[-1]
     on_axis = deficit.density(np.zeros((1, 2)))[0]
     far = deficit.density(np.array([[0.5, 0.0]]))[0]
     assert on_axis == pytest.approx(-0.3 * 2.0) and abs(far) < 1e-6
@@ -319,6 +317,7 @@ def test_the_third_written_tunnels_load_and_their_effects_do_what_they_say():
 
 
 def _no_jets():
+    """An empty group of jets, for an effect that adds sources of its own."""
     from wind_shaper.sim.physics import FlatTop, JetGroup
     return JetGroup(FlatTop(2.0), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, int))
 
