@@ -69,6 +69,7 @@ _RANGES = {
     'ridge_share': (0, 10, "a share of the base's predicted error"),
     'spread_sd': (0, 1, "a share of each fan's force"),
     'tilt_sd': (0, 5, 'N per 0.1 m across the section'),
+    'off_margin': (0, 100, "times the estimate's noise"),
 }
 
 
@@ -145,7 +146,14 @@ class AdaptiveUpdate:
     section (``ShapeFit``; 0: none; dense priors only): a screen's or mixing's even share grows
     with the total thrust, a warm wall's or a draft's plane stays whatever the fans do; left
     out, the fit bends the gains and the load slope to hold them, and the steps mispredict how
-    the field's level follows the fans. ``info['spread_share']`` is the share used.
+    the field's level follows the fans. ``info['spread_share']`` is the share used;
+    off_margin [x the estimate's noise]: a step that would switch a running fan off (its command
+    below ``idle_below``) takes it half way down instead, still running, unless switching it off
+    is predicted to gain more than this times the noise of one sweep's error (the stopping
+    rule's) over that step: no map of the run has the fan off, and the prior's curve is least
+    known there (a dead band, an idle disc's backflow, an ESC's crosstalk left out of the fit),
+    while a fan that should be off is off two steps later. ``info['held_on']`` says how many
+    fans a step held so; 0: off.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -183,6 +191,7 @@ class AdaptiveUpdate:
     level_map: bool = True
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
+    off_margin: float = 0.0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -522,53 +531,76 @@ class AdaptiveUpdate:
             return U_c, pred_c, J_c, f_c
 
         idx = np.flatnonzero(on)
-        U_c = U_b.copy()
-        pred_c, J_c = predict(U_c)
-        f_c = objective(pred_c, U_c)
-        from_base = (U_c, pred_c, J_c, f_c, lo, hi)
-        if J_b is None:  # large wall: the bounded QP in thrust space is the whole step
-            if idx.size:
-                U_c = _thrust_space_qp(basis, gains, r_b, U_b, lo, hi, idx, self.damping)
-                pred_c, _ = predict(U_c)
-        elif basis is not None and idx.size and basis.monotone:
-            # The corrected prior is linear in the per-fan thrusts a_j: solve the bounded
-            # problem there exactly (a fan idling at PWM 0, where da/dU = 0, can come back),
-            # then refine in PWM space, where the secant term lives.
-            # the load slope makes the model bilinear in the thrusts: held at the base's load here
-            S_step = Smat if not slope else Smat + slope * ShapeFit.load(U_b, on) * basis.shape
-            U_t = _thrust_space_step(basis, S_step, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
-            pred_t, J_t = predict(U_t)
-            f_t = objective(pred_t, U_t)
-            if f_t < f_c:
-                U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
-                # the convex thrust-space problem decides which limits are active: fans it put on
-                # a limit stay there (at PWM 0 the model's slope is 0, so the refinement below
-                # could only wander off it on noise)
-                pinned = (U_t <= lo + 1e-12) | (U_t >= hi - 1e-12)
-                lo, hi = np.where(pinned, U_t, lo), np.where(pinned, U_t, hi)
-        U_c, pred_c, J_c, f_c = refine(U_c, pred_c, J_c, f_c, lo, hi)
-        ridge = None
-        if self.ridge_share > 0 and J_b is not None and idx.size:
-            # A step the model itself says passes through much worse fields (a stall dip it
-            # fitted between the base and the step's end) bets on its extrapolation to another
-            # basin, which only faded commissioning maps describe: the step stays in the base's
-            # basin instead (Gauss-Newton from the base, cut back before any ridge left)
-            way = basis if basis is not None and basis.monotone else None
 
-            def predicted(U):
-                return objective(predict(U)[0], U)
-            ridge = _ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
-            if ridge is not None:
-                U_c, pred_c, J_c, f_c = refine(*from_base)
-                U_c = _before_ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
-                pred_c, J_c = predict(U_c)
-                f_c = objective(pred_c, U_c)
-        U_next = self.bounds.project(U_b + self.step_fraction * (U_c - U_b), on)
-        if self.idle_below > self.bounds.u_min:
-            # no ESC turns a propeller at a few percent PWM: such a command is sent as u_min
-            U_next = np.where(on & (U_next < self.idle_below), self.bounds.u_min, U_next)
-        if self.step_fraction < 1 or not np.array_equal(U_next, U_c):
-            pred_c, _ = predict(U_next)
+        def solve(lo, hi):
+            """The step within [lo, hi]: (U_next as sent, its predicted residual, the ridge)."""
+            U_c = U_b.copy()
+            pred_c, J_c = predict(U_c)
+            f_c = objective(pred_c, U_c)
+            from_base = (U_c, pred_c, J_c, f_c, lo, hi)
+            if J_b is None:  # large wall: the bounded QP in thrust space is the whole step
+                if idx.size:
+                    U_c = _thrust_space_qp(basis, gains, r_b, U_b, lo, hi, idx, self.damping)
+                    pred_c, _ = predict(U_c)
+            elif basis is not None and idx.size and basis.monotone:
+                # The corrected prior is linear in the per-fan thrusts a_j: solve the bounded
+                # problem there exactly (a fan idling at PWM 0, where da/dU = 0, can come back),
+                # then refine in PWM space, where the secant term lives.
+                # the load slope makes the model bilinear in the thrusts: held at the base's load here
+                S_step = Smat if not slope else Smat + slope * ShapeFit.load(U_b, on) * basis.shape
+                U_t = _thrust_space_step(basis, S_step, r_b, np.sqrt(w_b), U_b, lo, hi, idx, self.damping)
+                pred_t, J_t = predict(U_t)
+                f_t = objective(pred_t, U_t)
+                if f_t < f_c:
+                    U_c, pred_c, J_c, f_c = U_t, pred_t, J_t, f_t
+                    # the convex thrust-space problem decides which limits are active: fans it put on
+                    # a limit stay there (at PWM 0 the model's slope is 0, so the refinement below
+                    # could only wander off it on noise)
+                    pinned = (U_t <= lo + 1e-12) | (U_t >= hi - 1e-12)
+                    lo, hi = np.where(pinned, U_t, lo), np.where(pinned, U_t, hi)
+            U_c, pred_c, J_c, f_c = refine(U_c, pred_c, J_c, f_c, lo, hi)
+            ridge = None
+            if self.ridge_share > 0 and J_b is not None and idx.size:
+                # A step the model itself says passes through much worse fields (a stall dip it
+                # fitted between the base and the step's end) bets on its extrapolation to another
+                # basin, which only faded commissioning maps describe: the step stays in the base's
+                # basin instead (Gauss-Newton from the base, cut back before any ridge left)
+                way = basis if basis is not None and basis.monotone else None
+
+                def predicted(U):
+                    return objective(predict(U)[0], U)
+                ridge = _ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
+                if ridge is not None:
+                    U_c, pred_c, J_c, f_c = refine(*from_base)
+                    U_c = _before_ridge(predicted, U_b, U_c, self.ridge_share, err_noise, way)
+                    pred_c, J_c = predict(U_c)
+                    f_c = objective(pred_c, U_c)
+            U_next = self.bounds.project(U_b + self.step_fraction * (U_c - U_b), on)
+            if self.idle_below > self.bounds.u_min:
+                # no ESC turns a propeller at a few percent PWM: such a command is sent as u_min
+                U_next = np.where(on & (U_next < self.idle_below), self.bounds.u_min, U_next)
+            if self.step_fraction < 1 or not np.array_equal(U_next, U_c):
+                pred_c, _ = predict(U_next)
+            return U_next, pred_c, ridge
+
+        U_next, pred_c, ridge = solve(lo, hi)
+        held_on = 0   # fans the step would have switched off, held at the base's commands
+        if self.off_margin > 0 and self.idle_below > self.bounds.u_min:
+            # A fan switched off from a running command is a change the prior extrapolates to
+            # (no map of the run had it off; the dead band, an idle disc's backflow): the step
+            # does it only for a gain the sweep can tell from the same step with the fan held
+            half = 0.5 * U_b
+            switched = on & (half >= self.idle_below) & (U_next <= self.bounds.u_min)
+            if switched.any():
+                # half way down, still running: the next sweep shows the fan there, and a fan that
+                # should be off is off two or three steps later
+                held_lo, held_hi = lo.copy(), hi.copy()
+                held_lo[switched] = held_hi[switched] = half[switched]
+                U_held, pred_held, ridge_held = solve(held_lo, held_hi)
+                extra = float(np.mean(pred_held ** 2)) - float(np.mean(pred_c ** 2))
+                if extra < self.off_margin * err_noise:
+                    U_next, pred_c, ridge = U_held, pred_held, ridge_held
+                    held_on = int(switched.sum())
         # the gain is predicted on the (pooled) residual; the error it is later compared with
         # is one map's, so the prediction is stated as one map would measure it
         improvement = float(np.mean(r_b ** 2)) - float(np.mean(pred_c ** 2))
@@ -589,7 +621,8 @@ class AdaptiveUpdate:
                 'level_maps': n_level if fit_from < n_level else 0,
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
-                'stop_reason': reason, 'ridge': ridge}
+                'stop_reason': reason, 'ridge': ridge,
+                'held_on': held_on}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
         # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within

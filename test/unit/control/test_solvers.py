@@ -698,3 +698,26 @@ def test_a_plane_across_the_section_no_longer_bends_the_gains_and_the_load_slope
 def test_a_spread_or_tilt_sd_outside_its_range_is_refused(name):
     with pytest.raises(ConfigError, match=name):
         AdaptiveUpdate(**{name: -0.1})
+
+
+def test_a_step_takes_a_running_fan_half_way_down_unless_switching_it_off_clearly_pays(rig, prior):
+    """The best field has fan 2 off; it runs at 0.12 PWM. Switched off, the step gains a sliver
+    over the same step with the fan half way down, far less than one sweep's noise: with
+    ``off_margin`` it goes half way, still running, and says so; with a margin that sliver
+    clears, or with none, it goes off."""
+    kp = rig.key_points
+    U = np.full(7, 0.3)
+    U[2] = 0.12
+    off = U.copy()
+    off[2] = 0.0
+    target, field = prior(off, kp), prior(U, kp)
+    steps = {m: AdaptiveUpdate(off_margin=m).step(_inputs(rig, prior, U, field, target)) for m in (0.0, 1.0, 1e-3)}
+    assert steps[0.0].U_next[2] == 0.0 and steps[0.0].info['held_on'] == 0
+    assert steps[1.0].U_next[2] == pytest.approx(0.06) and steps[1.0].info['held_on'] == 1
+    assert steps[1e-3].U_next[2] == 0.0 and steps[1e-3].info['held_on'] == 0
+    assert np.all(steps[1.0].U_next <= AdaptiveUpdate().bounds.u_max)
+
+
+def test_an_off_margin_below_zero_is_refused():
+    with pytest.raises(ConfigError, match='off_margin'):
+        AdaptiveUpdate(off_margin=-1.0)

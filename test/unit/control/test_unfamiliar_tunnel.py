@@ -541,3 +541,38 @@ def test_the_second_step_does_not_cross_the_stall_dip_it_has_fitted():
             after[seed, guard] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
         assert ridges[seed, True] is not None and ridges[seed, False] is None, ridges
         assert after[seed, True] < 0.8 * after[seed, False], after
+
+
+#: the drawn bench tunnel `random 2030-1`: LM3's ESC leaks into the central fan's command, the
+#: ceiling sends a share of the jets back down, HM2's jet lands stretched; the uniform profile's
+#: best commands keep the edge fans at 0.13-0.17 PWM
+CROSSTALK_DOWNWASH = [{'name': 'esc_crosstalk', 'fan': 'CM', 'source': 'LM3', 'coupling': 0.272},
+                      {'name': 'ceiling_downwash', 'share': 0.162},
+                      {'name': 'elongated_footprint', 'fan': 'HM2', 'ratio': 1.475, 'angle': 0.611}]
+
+
+def test_a_step_switches_a_running_fan_off_only_for_a_gain_a_sweep_can_tell():
+    """Two steps in, the corrected prior promises a little more by turning edge fans off from
+    about 0.1 PWM, where no map of the run had them; the crosstalk it does not hold makes that
+    sweep worse. Taken half way down instead (``off_margin``, not yet the default), unless
+    switching them off gains more than one sweep's noise, the fourth sweep stays nearer the best."""
+    setup, effects, cal, maps = _commissioned(CROSSTALK_DOWNWASH)
+    shaping, kp = setup.shaping, setup.geometry.key_points
+    target = setup.make_target('uniform').values(kp)
+    third, held = {}, {}
+    for seed in (1, 3):
+        truth = setup.make_sim(seed=seed, effects=effects)
+        for margin in (1.0, 0.0):
+            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
+                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
+                                             rule_overrides={'off_margin': margin})
+            records = [loop.iterate() for _ in range(3)]
+            held[seed, margin] = sum(r.info.get('held_on', 0) for r in records)
+            third[seed, margin] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+    on, bounds = setup.geometry.fans.enabled, shaping.bounds
+    start = np.where(np.arange(len(on)) == len(on) - 1, 0.45, 0.15)
+    for seed in (1, 3):
+        best = _best_error(setup.make_sim(seed=seed, effects=effects), kp, target, on, bounds, [start])
+        assert held[seed, 1.0] > 0 and held[seed, 0.0] == 0, held
+        # measured: 1.11 / 1.07 x the best against 1.30 / 1.17 x
+        assert third[seed, 1.0] - best < 0.6 * (third[seed, 0.0] - best), (third, best)
