@@ -150,10 +150,10 @@ class AdaptiveUpdate:
     off_margin [x the estimate's noise]: a step that would switch a running fan off (its command
     below ``idle_below``) takes it half way down instead, still running, unless switching it off
     is predicted to gain more than this times the noise of one sweep's error (the stopping
-    rule's) over that step: no map of the run has the fan off, and the prior's curve is least
-    known there (a dead band, an idle disc's backflow, an ESC's crosstalk left out of the fit),
-    while a fan that should be off is off two steps later. ``info['held_on']`` says how many
-    fans a step held so; 0: off.
+    rule's) over that step: the run's maps seldom show a fan off, and the prior's curve is least
+    known near the bottom of the range (a dead band, an idle disc's backflow, an ESC's crosstalk
+    left out of the fit), while a fan that should be off is off two or three steps later.
+    ``info['held_on']`` says how many fans a step took half way down; 0: off.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -584,11 +584,11 @@ class AdaptiveUpdate:
             return U_next, pred_c, ridge
 
         U_next, pred_c, ridge = solve(lo, hi)
-        held_on = 0   # fans the step would have switched off, held at the base's commands
+        held_on = 0   # fans the step would have switched off, taken half way down instead
         if self.off_margin > 0 and self.idle_below > self.bounds.u_min:
             # A fan switched off from a running command is a change the prior extrapolates to
-            # (no map of the run had it off; the dead band, an idle disc's backflow): the step
-            # does it only for a gain the sweep can tell from the same step with the fan held
+            # (the run's maps seldom show it; the dead band, an idle disc's backflow): the step
+            # does it only for a gain the sweep can tell from the same step with the fan half way down
             half = 0.5 * U_b
             switched = on & (half >= self.idle_below) & (U_next <= self.bounds.u_min)
             if switched.any():
