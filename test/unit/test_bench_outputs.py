@@ -316,6 +316,48 @@ def test_the_third_written_tunnels_load_and_their_effects_do_what_they_say():
     np.testing.assert_allclose(neck.sources([idle_jets], np.zeros(n), geo)[0].centres, pos)
 
 
+def test_the_fourth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-02b: every file loads; the frame's yaw turns every point
+    about the axis by its angle; the foldback leaves a thrust below the knee alone and, above
+    it, peaks at knee (1 + 1 / (4 fold)) and falls after; the entrainment weakens only the edge
+    jets, more the harder the central fan runs and the weaker the edge fan is."""
+    geo, pos = _written_tunnels_load('written_2026-12-02b', count=3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    yaw = make_effect('frame_yaw', angle=30.0)
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    np.testing.assert_allclose(yaw.warp(np.array([[0.2, 0.0], [0.0, 0.1]]), np.zeros(n), geo),
+                               [[0.2 * c, 0.2 * s], [-0.1 * s, 0.1 * c]], atol=1e-12)
+    fold = make_effect('thrust_foldback', knee=4.0, fold=0.5, spread=0.0)
+    t = np.linspace(0.0, 12.0, 1201)
+    out = np.array([fold.thrust(np.full(n, x), geo)[0] for x in t])
+    below = t <= 4.0
+    np.testing.assert_allclose(out[below], t[below])
+    peak = int(np.argmax(out))
+    assert t[peak] == pytest.approx(8.0, abs=0.02) and out[peak] == pytest.approx(6.0, rel=1e-3)
+    assert out[-1] < out[peak] - 1.0                  # past the peak it falls
+    spread = make_effect('thrust_foldback', knee=4.0, fold=0.5, spread=0.2, seed=3)
+    knees_apart = spread.thrust(np.full(n, 6.0), geo)
+    assert np.ptp(knees_apart) > 0.05                 # each fan its own knee
+    ent = make_effect('central_entrainment', loss=0.4, thrust_ref=1.0)
+    centre = int(np.argmin(np.hypot(*pos.T)))
+    def peaks(thrust):
+        jets = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+        return ent.sources([jets], np.asarray(thrust, float), geo)[0].amplitude
+    calm = np.full(n, 2.0)
+    calm[centre] = 0.0
+    np.testing.assert_allclose(peaks(calm), 1.0)      # a central fan at rest takes nothing
+    busy = np.full(n, 2.0)
+    busy[centre] = 4.0
+    edge = np.arange(n) != centre
+    np.testing.assert_allclose(peaks(busy)[edge], 1 - 0.4 * 4.0 / (4.0 + 2.0 + 1.0))
+    assert peaks(busy)[centre] == 1.0
+    weak = busy.copy()
+    weak[np.flatnonzero(edge)[0]] = 0.5
+    assert peaks(weak)[np.flatnonzero(edge)[0]] < peaks(busy)[np.flatnonzero(edge)[0]]
+
+
 def _no_jets():
     """An empty group of jets, for an effect that adds sources of its own."""
     from wind_shaper.sim.physics import FlatTop, JetGroup
