@@ -15,6 +15,8 @@ Methods:
   warm        the adaptive update from the prior's optimum (warm start), 1000-sample sweeps
   warm+short  the warm start with sweeps as long as needed (the shipped default)
   warm+region warm+short, and after the first sweep only the region the step changed
+  warm+bias   warm+short with the force sensor biased before every sweep, every fan off
+              (the coordinator's bias_zero: every_sweep; a drifting zero, docs/benchmarks.md)
 
 Plants (the prior is commissioned on each plant as the commissioning guide says, the 8
 moving-plate sweeps of `lhs:6+level` (fans off twice, 4 designed, 2 level) fitted by
@@ -110,6 +112,7 @@ METHODS = {
     'warm+short': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True},
     'warm+region': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True, 'region': True},
     'flat': {'rule': {'method': 'adaptive'}, 'u0': 0.5, 'short': True},
+    'warm+bias': {'rule': {'method': 'adaptive'}, 'u0': 'warm', 'short': True, 'bias_zero': 'every_sweep'},
 }
 SHIPPED = 'warm+short'
 NOMINAL_TARGETS = ['uniform', 'gaussian@LM1', 'parabolic', 'expr:2.5 + 0.5*cos(3*theta)*r/0.3']
@@ -473,6 +476,9 @@ class _TimedTunnel:
     def sweep(self, n_samples=1000):
         return self._timed(self._t.sweep, n_samples)
 
+    def bias_sensor(self):
+        return self._timed(self._t.bias_sensor)
+
     def sweep_chunks(self, max_samples=1000, chunk_samples=50, **region):
         gen = self._timed(self._t.sweep_chunks, max_samples, chunk_samples, **region)
         while True:
@@ -507,7 +513,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
     loop = ShapingLoop(tunnel, plant.prior, target_values, rule, estimator,
                        u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
                        fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error,
-                       prior_maps=plant.prior_maps)
+                       prior_maps=plant.prior_maps, bias_zero=cfg.get('bias_zero', 'never'))
     out = {'mse': [], 'pwm': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
            'mismatch': None, 'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):

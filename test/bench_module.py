@@ -32,7 +32,8 @@ QUICK = {
                  '--sweeps', '6', '--samples', '300', '--jobs', '1'],
     'field_std': ['--quick', '--estimator', 'long_run_span_s=0'],
     'scale': ['--quick'],
-    'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short',
+    # warm+bias: the bench's path to the tunnel's sensor bias, too
+    'convergence': ['--quick', '--seeds', '1', '--iterations', '1', '--methods', 'warm+short,warm+bias',
                     '--targets', 'uniform'],
     'random_tunnels': ['--quick'],
     'clocks': ['--quick', '--jobs', '1'],

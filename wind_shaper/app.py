@@ -127,11 +127,12 @@ def shape_on_sim(setup: Setup, target_spec, *, iterations: int | None = None, se
 
 def shaping_loop_on_sim(setup: Setup, target_spec, *, seed: int = 0, model: Term | None = None,
                         u0=None, rule_overrides: dict | None = None, sim=None,
-                        on_progress=None, model_path=None) -> tuple[ShapingLoop, Target]:
+                        on_progress=None, model_path=None,
+                        bias_zero: str = 'never') -> tuple[ShapingLoop, Target]:
     """The shaping loop of ``shape_on_sim``, not yet run. The prior's calibration error (for the
     warm start's check) and its commissioning maps are read from its model file: the setup's
     own when ``model`` is None, ``model_path`` when ``model`` came from that file, none for a
-    ``model`` without a file."""
+    ``model`` without a file. ``bias_zero``: when to bias the force sensor (``ShapingLoop``)."""
     sim = sim or setup.make_sim(seed=seed)
     from_file = model is None or model_path is not None
     error = setup.model_error(model_path) if from_file else float('nan')
@@ -142,7 +143,7 @@ def shaping_loop_on_sim(setup: Setup, target_spec, *, seed: int = 0, model: Term
     loop = ShapingLoop.from_settings(sim, model, target.values(kp), setup.shaping, u0=u0,
                                      rule_overrides=rule_overrides, model_error=error,
                                      truth=lambda U: sim.true_field(U, kp), prior_maps=maps,
-                                     on_progress=on_progress)
+                                     on_progress=on_progress, bias_zero=bias_zero)
     return loop, target
 
 

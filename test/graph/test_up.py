@@ -101,10 +101,11 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     text = shaping.read_text()
     assert 'std_factor: 2.0 ' in text
     shaping.write_text(text.replace('std_factor: 2.0 ', 'std_factor: 3.0 '))
+    # and the force sensor biased first, every fan off (bias_zero every_sweep: a drifting zero)
     u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
            '--set', 'coordinator.sweep_duration_s=40.0', '--set', 'coordinator.sweep_min_s=3.0',
            '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3',
-           '--config', str(config))
+           '--set', 'coordinator.bias_zero=every_sweep', '--config', str(config))
     assert u.wait(220) == 0, u.output()[-6000:]
     out = u.output()
     m = re.search(r'the estimate is good enough after ([\d.]+) s \(coverage 100 %, std '
@@ -121,3 +122,8 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     # a sweep that ran in full takes its 40 s and more; one stopped early less (the stop's own
     # latency included)
     assert 3.0 <= record['info']['plate_s'] < 40.0 + 41.0 * (sweeps - 1), record['info']
+    # the bias went through the force_sensor node to the sensor (a refusal stops the iteration)
+    # between the fans going off and the iteration's commands, and its spin-down is settle time
+    stamps = record['timestamps']
+    assert stamps['started'] < stamps['biased'] < stamps['applied'] < stamps['sweep_started'], stamps
+    assert record['info']['settle_s'] >= 2 * 0.5, record['info']

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.bias import BIAS_MODES
 from ..core.errors import WindShaperError
 
 
@@ -51,7 +52,8 @@ def _cmd_shape(args) -> int:
     from .model import _u0
     u0 = _u0(args.u0)
     loop, target = shaping_loop_on_sim(setup, args.target, seed=args.seed, model=model, sim=sim,
-                                       u0=u0, rule_overrides=rule or None, model_path=args.model)
+                                       u0=u0, rule_overrides=rule or None, model_path=args.model,
+                                       bias_zero=args.bias_zero)
     note = setup.prior_maps(args.model)[1] if args.model else ''
     if note:   # the model file's maps were made at other key points
         print(f'note: {note}')
@@ -215,6 +217,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='import your own model terms (or simulator effects) first, e.g. for a model '
                         'file naming a term kind of yours; repeat for more (or list them in '
                         'WIND_SHAPER_PLUGINS)')
+    p.add_argument('--bias-zero', choices=BIAS_MODES, default='never',
+                   help="every_sweep: bias the force sensor before every sweep with every fan off "
+                        "(as the coordinator's bias_zero; against a drifting zero, e.g. --hidden "
+                        "sensor_zero_drift); counts a spin-down more per sweep (default: never)")
     p.add_argument('--out', type=Path, default=None, help='report folder (default: reports/shape-<time>)')
     p.set_defaults(func=_cmd_shape)
 

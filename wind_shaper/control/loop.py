@@ -11,6 +11,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..core.bias import BIAS_AT_ROW, BIAS_BEFORE_ROW, bias_plan, check_bias_mode
 from ..core.errors import ConfigError
 from ..estimation import FieldEstimate, FieldEstimator
 from ..model import Term
@@ -81,7 +82,9 @@ class ShapingLoop:
     on_progress: called with a ``SweepProgress`` after every chunk of an adaptive sweep;
     truth: optional U -> true field at the key points, for scoring on a simulator; prior_maps:
     the commissioning's field maps of this tunnel at the same key points (``PastIteration``;
-    ``workbench.calibrate.commissioning_maps``), for the rule's fit.
+    ``workbench.calibrate.commissioning_maps``), for the rule's fit; bias_zero: when to bias the
+    force sensor (``core.bias.BIAS_MODES``; 'every_sweep': every fan off, the tunnel's
+    ``bias_sensor()``, then the iteration's commands, counted as two more ``fan_settle_s``).
     """
 
     def __init__(self, tunnel: Tunnel, model: Term, target: np.ndarray, rule: UpdateRule,
@@ -89,8 +92,14 @@ class ShapingLoop:
                  truth: Callable[[np.ndarray], np.ndarray] | None = None, *,
                  sweep_length: SweepLength | None = None, fan_settle_s: float = 0.0,
                  model_error: float = float('nan'), prior_maps: tuple = (),
-                 on_progress: Callable[[SweepProgress], None] | None = None):
+                 on_progress: Callable[[SweepProgress], None] | None = None,
+                 bias_zero: str = 'never'):
         geo = tunnel.geometry
+        self.bias_zero = check_bias_mode(bias_zero)
+        if bias_zero != 'never' and not hasattr(tunnel, 'bias_sensor'):
+            raise ConfigError(f'bias_zero {bias_zero!r} needs a tunnel that can bias its force '
+                              f'sensor ({type(tunnel).__name__} has no bias_sensor); use never')
+        self._biased = False   # whether the latest measure() biased the sensor first
         self.tunnel, self.model, self.rule, self.estimator = tunnel, model, rule, estimator
         self.key_points = geo.key_points
         self.enabled = geo.fans.enabled
@@ -129,17 +138,18 @@ class ShapingLoop:
                       rule_overrides: dict | None = None,
                       truth: Callable[[np.ndarray], np.ndarray] | None = None,
                       model_error: float = float('nan'), sweep_length: SweepLength | None = None,
-                      prior_maps: tuple = (), on_progress=None) -> 'ShapingLoop':
+                      prior_maps: tuple = (), on_progress=None,
+                      bias_zero: str = 'never') -> 'ShapingLoop':
         """The loop that ``shaping`` (a ``control.settings.ShapingConfig``) configures: its update
         rule (``rule_overrides={'method': 'paper'}`` for Algorithm 1), estimator, samples per
         sweep, sweep length, fan settle time and u0 (unless given); ``prior_maps``: the
-        commissioning's field maps (see the class)."""
+        commissioning's field maps, ``bias_zero``: when to bias the sensor (see the class)."""
         return cls(tunnel, model, target, shaping.make_rule(**(rule_overrides or {})),
                    shaping.make_estimator(model), u0=shaping.u0 if u0 is None else u0,
                    n_samples=shaping.samples_per_sweep, truth=truth,
                    sweep_length=shaping.make_sweep_length() if sweep_length is None else sweep_length,
                    fan_settle_s=shaping.fan_settle_s, model_error=model_error,
-                   prior_maps=prior_maps, on_progress=on_progress)
+                   prior_maps=prior_maps, on_progress=on_progress, bias_zero=bias_zero)
 
     def region_plan(self, U) -> RegionPlan | None:
         """Where the sweep at commands ``U`` must go (``control.region``): None for the whole
@@ -153,7 +163,14 @@ class ShapingLoop:
     def measure(self) -> tuple[np.ndarray, Sweep, FieldEstimate, dict]:
         """Apply the commands, sweep, estimate: (applied, sweep, estimate, region), region the
         region sweep's plan and check as written to the record's info ({} for a whole sweep)."""
+        when = bias_plan(self.U, self.bias_zero)[0]
+        if when == BIAS_BEFORE_ROW:   # every fan off, settled, then zero the sensor
+            self.tunnel.apply(np.zeros_like(self.U))
+            self.tunnel.bias_sensor()
         applied = self.tunnel.apply(self.U)
+        if when == BIAS_AT_ROW:
+            self.tunnel.bias_sensor()
+        self._biased = when == BIAS_BEFORE_ROW
         policy = self.sweep_length
         reuse = None   # the last sweep's fitted hyperparameters, between refits (SweepLength.refit_sweeps)
         if policy is not None and self.history and len(self.history) % policy.refit_sweeps:
@@ -213,6 +230,8 @@ class ShapingLoop:
             true_error = mean_squared_error(true_field, self.target)
         settle = self.fan_settle_s if (not self.history
                                        or not np.array_equal(self.history[-1].pwm, applied)) else 0.0
+        if self._biased:   # the spin-down before the bias and the spin-up after it
+            settle = 2.0 * self.fan_settle_s
         rec = IterationRecord(self.k, applied, est, self.target, mean_squared_error(est.mean, self.target),
                               next_pwm, step_size, sweep, true_error, true_field, info, settle)
         self.history.append(rec)

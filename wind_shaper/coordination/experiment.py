@@ -32,6 +32,7 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
+from ..core.bias import BIAS_AT_ROW, BIAS_BEFORE_ROW, BIAS_MODES, NO_BIAS, bias_plan
 from ..core.config import read_yaml
 from ..core.tunnel import Sweep
 from ..estimation import coverage_share
@@ -40,31 +41,6 @@ from ..storage import FLAGGED, PENDING, STORED, ExperimentPlan, ExperimentStore
 from .iteration import FAILED, IterationStopped, RigPorts
 
 COMMANDING, SWEEPING, CHECKING = 'commanding', 'sweeping', 'checking'
-
-#: When a designed experiment biases the force sensor (see the module docstring).
-BIAS_MODES = ('never', 'fans_off', 'every_sweep')
-#: What ``bias_plan`` says for one row: nothing, bias once the row's own (fans-off) commands
-#: have settled, or turn the fans off and bias before commanding the row.
-NO_BIAS, BIAS_AT_ROW, BIAS_BEFORE_ROW = '', 'at_row', 'before_row'
-
-
-def bias_plan(commands, mode: str) -> list[str]:
-    """Per row of ``commands`` (rows x fans) [fraction], when to bias the force sensor under
-    ``mode`` (one of ``BIAS_MODES``): ``BIAS_AT_ROW`` for a row with every fan off,
-    ``BIAS_BEFORE_ROW`` for any other row with 'every_sweep', else ``NO_BIAS``."""
-    if mode not in BIAS_MODES:
-        raise DesignError(f'bias_zero must be one of {", ".join(BIAS_MODES)}; got {mode!r} '
-                          f'(fans_off: bias the force sensor on the rows with every fan off)')
-    rows = np.atleast_2d(np.asarray(commands, dtype=float))
-    plan = []
-    for u in rows:
-        if mode == 'never':
-            plan.append(NO_BIAS)
-        elif np.all(np.abs(u) < 1e-9):
-            plan.append(BIAS_AT_ROW)
-        else:
-            plan.append(BIAS_BEFORE_ROW if mode == 'every_sweep' else NO_BIAS)
-    return plan
 
 
 class ExperimentPorts(RigPorts, Protocol):
@@ -75,10 +51,6 @@ class ExperimentPorts(RigPorts, Protocol):
 
     def row_done(self, index: int, outcome: str, sweep: Sweep | None, coverage: float) -> None:
         """A row was stored or flagged (``sweep``: its pairs, when there are any)."""
-
-    async def bias_sensor(self) -> None:
-        """Zero the force sensor's reading now (only asked with every fan off and settled,
-        and only with ``bias_zero`` other than 'never')."""
 
 
 @dataclass(frozen=True)

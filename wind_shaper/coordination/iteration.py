@@ -25,6 +25,7 @@ import numpy as np
 from ..control import PastIteration, UpdateInput
 from ..control.region import RegionPlan, next_region, region_record
 from ..control.warm_start import WarmStart, first_step_rule, warm_start
+from ..core.bias import BIAS_AT_ROW, BIAS_BEFORE_ROW, bias_plan
 from ..core.config import read_yaml
 from ..core.errors import ConfigError, WindShaperError
 from ..core.tunnel import Sweep
@@ -79,6 +80,10 @@ class RigPorts(Protocol):
 
     async def command_fans(self, U: np.ndarray) -> None:
         """Send U and return once the fans report it applied (and have settled)."""
+
+    async def bias_sensor(self) -> None:
+        """Zero the force sensor's reading now (only asked with every fan off and settled,
+        and only with ``bias_zero`` other than 'never')."""
 
     async def begin_sweep(self) -> None:
         """Tell the estimator to start collecting (it keeps collecting over re-sweeps)."""
@@ -380,17 +385,30 @@ def tunnel_time(stamps: dict) -> dict:
 
 
 async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: int,
-                        clock: Callable[[], float] = time.time) -> IterationData:
+                        clock: Callable[[], float] = time.time, bias_zero: str = 'never') -> IterationData:
     """One iteration of ``run`` on the rig behind ``ports`` (see the module docstring); returns
-    what was written to the run folder. Raises IterationStopped when it fails or is cancelled:
-    the run then stays at its iteration and the fans at the last completed commands."""
+    what was written to the run folder. ``bias_zero`` (``core.bias.BIAS_MODES``): 'every_sweep'
+    turns every fan off, biases the force sensor once they settled and then commands the
+    iteration (a drifting zero would otherwise move every map of the run). Raises
+    IterationStopped when it fails or is cancelled: the run then stays at its iteration and the
+    fans at the last completed commands."""
     k, U = run.k, run.U.copy()
     stamps = {'started': clock()}
-    # 1. commanding
+    bias = bias_plan(U, bias_zero)[0]
+    # 1. commanding (after a bias with every fan off, when asked)
     run.command = U
+    if bias == BIAS_BEFORE_ROW:
+        ports.set_state(COMMANDING, f'iteration {k}: every fan off to bias the force sensor')
+        await ports.command_fans(np.zeros_like(U))
+        await ports.bias_sensor()
+        stamps['biased'] = clock()
+        ports.check_boundary()
     ports.set_state(COMMANDING, f'iteration {k}: commanding the fans')
     await ports.command_fans(U)
     stamps['applied'] = clock()
+    if bias == BIAS_AT_ROW:
+        await ports.bias_sensor()
+        stamps['biased'] = clock()
     ports.check_boundary()
 
     # 2. sweeping, 3. estimating: the estimator refuses a sweep that missed part of the area or

@@ -86,10 +86,11 @@ class CoordinatorParams:
                                "to a held-plate calibration point; '' = a person carries it there")
     settle_s: float = param(2.0, 'wait after the fans report the commands, before sweeping [s]',
                             low=0.0, high=600.0)
-    bias_zero: str = param('never', "designed experiments (collect): bias the force sensor "
-                           "(its bias service) 'never', at 'fans_off' rows once the fans settled, "
-                           "or before 'every_sweep' with every fan off (which then also zeroes a "
-                           "draft that blows with the fans off)")
+    bias_zero: str = param('never', "designed experiments (collect) and shaping iterations: bias "
+                           "the force sensor (its bias service) 'never', at 'fans_off' sweeps once "
+                           "the fans settled, or before 'every_sweep' with every fan off (a "
+                           "spin-down and settle_s more per sweep; also zeroes a draft that blows "
+                           "with the fans off)")
     hold_still_s: float = param(1.0, 'a held-plate point is recorded once the plate has stayed '
                                 'within its tolerance this long [s] (a motion stage settles '
                                 'sooner than a hand)', low=0.0, high=60.0)

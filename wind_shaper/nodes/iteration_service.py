@@ -79,7 +79,8 @@ class IterationService:
         with node.lock:
             node.book.start_iteration(k)
         try:
-            data = await run_iteration(run_, node.rig, rule, max_sweeps=node.params.max_sweeps)
+            data = await run_iteration(run_, node.rig, rule, max_sweeps=node.params.max_sweeps,
+                                       bias_zero=node.params.bias_zero)
         except IterationStopped as stop:
             return self._end(response, stop.state, f'iteration {k} {stop.state}: {stop}'
                              + ('; the fans keep the last completed iteration\'s commands and the '

@@ -19,8 +19,8 @@ from wind_shaper_msgs.msg import IterationStatus
 from wind_shaper_msgs.srv import EstimateField, Sweep
 
 from ..control.region import RegionPlan
-from ..coordination import BIAS_MODES, FanWatch, FieldAnswer, IterationStopped
-from ..core.errors import ConfigError
+from ..coordination import FanWatch, FieldAnswer, IterationStopped
+from ..core.bias import check_bias_mode
 from ..coordination.sweeping import (SweepJudge, discarded_text, peek_figures, required, sweep_span,
                                      watch_sweep)
 from ..ros import names
@@ -50,9 +50,7 @@ class RigLink:
                               if p.sweep_service else None)
         self._stop_sweep_client = (node.create_client(Trigger, p.stop_sweep_service, callback_group=cb)
                                    if p.sweep_service and p.stop_sweep_service else None)
-        if p.bias_zero not in BIAS_MODES:
-            raise ConfigError(f'bias_zero must be one of {", ".join(BIAS_MODES)}; got {p.bias_zero!r} '
-                              f'(never: leave the force sensor as it is)')
+        check_bias_mode(p.bias_zero)
         self._bias_client = (node.create_client(Trigger, names.FORCE_BIAS, callback_group=cb)
                              if p.bias_zero != 'never' else None)
         shaping = node.setup.shaping

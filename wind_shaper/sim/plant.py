@@ -100,6 +100,7 @@ class SimulatedTunnel:
         self.clock_s = 0.0
         self._previous = np.zeros(n)
         self._changed_at = 0.0
+        self._bias = 0.0   # what ``bias_sensor`` zeroed [N]
 
     def _setup_jets(self):
         c, side = self.constants, self.geometry.plate_side
@@ -146,6 +147,7 @@ class SimulatedTunnel:
         forces = self.noise.forces(self._sweep_forces(state, true_pos, clock), dt, rng)
         for effect in self._pipeline:
             forces = forces + effect.sensor_zero(clock)
+        forces = forces - self._bias
         paired = true_pos
         for effect in self._pipeline:
             paired = effect.recorded(paired, dt)
@@ -196,6 +198,19 @@ class SimulatedTunnel:
         series = self.noise.forces(np.tile(true, (int(samples_per_point), 1)),
                                    1.0 / self.sample_rate_hz, rng)
         return series.mean(axis=0)
+
+    def bias_sensor(self) -> float:
+        """Zero the force sensor, like the rig's bias command: every later recorded force has this
+        moment's reading taken off -- the sensor's zero at ``clock_s`` (``HiddenEffect.sensor_zero``)
+        and the plate's noise-free force at the area's centre with the fans as commanded now (so
+        a bias with a fan running zeroes its force too; with every fan off, a draft that still
+        blows). Sweeps only, like the zero itself (``HiddenEffect.sensor_zero``): ``measure_at``
+        reads as before. Returns that offset [N]."""
+        now = np.array([self.clock_s])
+        zero = sum(float(np.sum(effect.sensor_zero(now))) for effect in self._pipeline)
+        here = float(self._plate(self.state(self._pwm), np.zeros((1, 2)))[0])
+        self._bias = zero + here
+        return self._bias
 
     # -- ground truth -------------------------------------------------------------------------------
     def true_field(self, pwm, points) -> np.ndarray:

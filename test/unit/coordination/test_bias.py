@@ -1,15 +1,18 @@
-"""coordination.experiment: biasing the force sensor in a designed experiment (bias_zero), opt-in:
-never by default, on the fans-off rows once they settled, or before every sweep with the fans
-off; the plan is pure logic, and run_experiment asks the port in the right order."""
+"""Biasing the force sensor (bias_zero), opt-in, in a designed experiment and in a shaping
+iteration: never by default, on the fans-off rows once they settled, or before every sweep with
+the fans off; the plan is pure logic (core.bias), and run_experiment and run_iteration ask the
+port in the right order."""
 import asyncio
 
 import numpy as np
 import pytest
 
 from wind_shaper.app import Setup
-from wind_shaper.coordination import BIAS_MODES, Experiment, FieldAnswer, bias_plan, run_experiment
+from wind_shaper.coordination import (BIAS_MODES, Experiment, FieldAnswer, ShapingRun, bias_plan,
+                                      run_experiment, run_iteration)
 from wind_shaper.coordination.experiment import BIAS_AT_ROW, BIAS_BEFORE_ROW, NO_BIAS
-from wind_shaper.experiment import DesignError, make_design
+from wind_shaper.core.errors import ConfigError
+from wind_shaper.experiment import make_design
 from sim_ports import SimPorts
 
 TABLE = np.array([[0.0, 0.0], [0.3, 0.5], [0.0, 0.0], [0.6, 0.0]])
@@ -24,7 +27,7 @@ def test_the_plan_biases_only_with_every_fan_off_and_never_by_default():
 
 
 def test_an_unknown_mode_is_refused_with_the_modes_it_knows():
-    with pytest.raises(DesignError, match='never, fans_off, every_sweep'):
+    with pytest.raises(ConfigError, match='never, fans_off, every_sweep'):
         bias_plan(TABLE, 'always')
 
 
@@ -71,3 +74,32 @@ def test_run_experiment_biases_after_the_fans_off_rows_settle_or_before_every_ro
     # a fans-on row: fans off, bias, then the row's commands
     i = kinds.index('bias', 2)
     assert log[i - 1][0] == 'fans' and not any(log[i - 1][1]) and any(log[i + 1][1])
+
+
+def _iterate(setup, tmp_path, mode, iterations=2):
+    run = ShapingRun.open(setup, tmp_path, 'biased', 'parabolic', {'test': True})
+    ports = BiasPorts(setup)
+    for _ in range(iterations):
+        _, rule = run.prepare()
+        data = asyncio.run(run_iteration(run, ports, rule, max_sweeps=1, bias_zero=mode))
+    return ports.log, data
+
+
+def test_a_shaping_iteration_biases_with_every_fan_off_before_its_commands_only_when_asked(setup, tmp_path):
+    log, _ = _iterate(setup, tmp_path / 'never', 'never')
+    assert [e[0] for e in log] == ['fans', 'fans']
+    log, data = _iterate(setup, tmp_path / 'every', 'every_sweep')
+    assert [e[0] for e in log] == ['fans', 'bias', 'fans'] * 2
+    assert not any(log[0][1]) and any(log[2][1])
+    # the bias is stamped, and the spin-down before it counts in the iteration's settle time
+    stamps = data.timestamps
+    assert stamps['started'] <= stamps['biased'] <= stamps['applied']
+    assert data.info['settle_s'] == pytest.approx(stamps['sweep_started'] - stamps['started'], abs=1e-3)
+
+
+def test_a_shaping_iteration_refuses_an_unknown_bias_mode_before_touching_the_fans(setup, tmp_path):
+    run = ShapingRun.open(setup, tmp_path, 'bad', 'parabolic', {'test': True})
+    ports = BiasPorts(setup)
+    with pytest.raises(ConfigError, match='every_sweep'):
+        asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=1, bias_zero='hourly'))
+    assert ports.log == [] and run.k == 0

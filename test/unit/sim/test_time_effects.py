@@ -62,3 +62,68 @@ def test_time_faults_are_registered_by_name_and_bounded():
     assert make_effect('unsettled_fans', tau=2.0).tau == 2.0
     with pytest.raises(EffectError, match='physical bounds'):
         UnsettledFans(tau=-1.0)
+
+
+def test_a_bias_with_every_fan_off_zeroes_the_drift_so_far(setup):
+    clean, drift = setup.make_sim(seed=1), setup.make_sim(seed=1, effects=[SensorZeroDrift(rate=0.01)])
+    a, b = _sweeps(clean, [0.5, 0.5]), _sweeps(drift, [0.5, 0.5])
+    for sim in (clean, drift):   # 20 s of recording so far; every fan off, then zero the sensor
+        sim.apply(np.zeros(sim.geometry.fans.n_fans))
+        sim.bias_sensor()
+    assert drift._bias == pytest.approx(0.01 * 20.0) and clean._bias == pytest.approx(0.0)
+    a, b = _sweeps(clean, [0.5]), _sweeps(drift, [0.5])
+    assert np.allclose(b[0].forces - a[0].forces, 0.01 * a[0].times)   # from zero again
+
+
+def test_a_bias_with_the_fans_running_zeroes_their_force_too(setup):
+    sim = setup.make_sim(seed=1)
+    sim.apply(np.full(sim.geometry.fans.n_fans, 0.5))
+    centre = sim.true_field(sim.pwm, np.zeros((1, 2)))[0]
+    assert sim.bias_sensor() == pytest.approx(centre) and centre > 1.0
+    before = setup.make_sim(seed=1)
+    before.apply(sim.pwm)
+    assert np.allclose(sim.sweep(200).forces, before.sweep(200).forces - centre)
+
+
+def _loop(setup, sim, bias_zero):
+    from wind_shaper.control import ShapingLoop
+    target = setup.make_target('uniform').values(setup.geometry.key_points)
+    return ShapingLoop.from_settings(sim, setup.load_model(), target, setup.shaping, u0=0.4,
+                                     truth=lambda U: sim.true_field(U, setup.geometry.key_points),
+                                     bias_zero=bias_zero)
+
+
+def test_a_shaping_loop_biased_before_every_sweep_does_not_carry_the_drift_into_its_maps(setup):
+    drift = dict(effects=[SensorZeroDrift(rate=0.02)])
+    offsets, settle = {}, {}
+    for mode in ('never', 'every_sweep'):
+        loop = _loop(setup, setup.make_sim(seed=4, **drift), mode)
+        recs = [loop.iterate(update=False) for _ in range(3)]
+        offsets[mode] = [float(np.mean(r.estimate.mean - r.true_field)) for r in recs]
+        settle[mode] = [r.settle_s for r in recs]
+    # unbiased, each sweep's map sits higher by the zero of its time; biased, only the drift
+    # within one sweep is left (the sweep's mean time x the rate)
+    assert offsets['never'][2] > 2.0 * offsets['every_sweep'][2] + 0.1
+    assert max(offsets['every_sweep']) < 0.02 * 20.0
+    # a bias costs the spin-down before it and the spin-up after it
+    fan_settle = setup.shaping.fan_settle_s
+    assert settle['never'] == [fan_settle, 0.0, 0.0] and settle['every_sweep'] == [2.0 * fan_settle] * 3
+
+
+def test_a_loop_on_a_tunnel_that_cannot_bias_refuses_bias_zero(setup):
+    from wind_shaper.core.errors import ConfigError
+
+    class NoBias:
+        def __init__(self, sim):
+            self.geometry, self._sim = sim.geometry, sim
+
+        def apply(self, pwm):
+            return self._sim.apply(pwm)
+
+        def sweep(self, n_samples=1000):
+            return self._sim.sweep(n_samples)
+
+    with pytest.raises(ConfigError, match='bias_sensor'):
+        _loop(setup, NoBias(setup.make_sim(seed=0)), 'every_sweep')
+    with pytest.raises(ConfigError, match='never, fans_off, every_sweep'):
+        _loop(setup, setup.make_sim(seed=0), 'sometimes')

@@ -63,7 +63,8 @@ class SensorZero(TimeCheck):
                    f'({z:.0f} standard errors apart; noise {rec.noise_sd:.3f} N per sample). Every '
                    f'sweep between carries its own part of that, which no effect of the flow '
                    f'describes. Bias the sensor with the fans off before each sweep (the '
-                   f'coordinator\'s parameter bias_zero: every_sweep, for designed experiments), or '
+                   f'coordinator\'s parameter bias_zero: every_sweep, in designed experiments and '
+                   f'shaping runs), or '
                    f'repair these sweeps with {ZERO_REPAIR} (the zero\'s change interpolated '
                    f'linearly in recording time between the fans-off sweeps and subtracted).')
         return self.result(fault, numbers, message, ZERO_REPAIR)
