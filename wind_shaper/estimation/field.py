@@ -425,6 +425,11 @@ class FieldEstimator:
     #: (``estimation.turbulent.long_run_scale``): gusts slower than the fitted gust time, which
     #: one sweep cannot tell from the field, then widen the std instead of hiding in it; 0: off
     long_run_span_s: float = 1.5
+    #: pair each force with the plate's position this long [s] after the force's own time (a
+    #: motion capture that stamps its frames late; negative: early), as the diagnosis's
+    #: ``--position-lag`` does on recorded sweeps, whose clocks check measures the lag; 0: as
+    #: recorded
+    position_lag_s: float = 0.0
 
     def __post_init__(self):
         if self.method not in ('auto', 'exact', 'local'):
@@ -456,6 +461,11 @@ class FieldEstimator:
         if not (isinstance(self.sample_window_s, (int, float)) and 0 <= self.sample_window_s <= 1):
             raise ConfigError(f'estimator sample_window_s must be 0 (the closest samples) or a '
                               f'window of up to 1 s; got {self.sample_window_s!r}')
+        lag = self.position_lag_s
+        if not (isinstance(lag, (int, float)) and np.isfinite(lag) and abs(lag) <= 1.0):
+            raise ConfigError(f'estimator position_lag_s must be a number of seconds within +-1 '
+                              f'(the diagnosis measures it: "the positions arrive 40 ms late" is '
+                              f'0.040; 0: as recorded); got {lag!r}')
         if self.noise_model == 'turbulent':
             self.turbulence_start(1.0)             # validates the start values
             LocalTurbulentGaussianProcessField(  # validates the fit and tile settings
@@ -548,6 +558,10 @@ class FieldEstimator:
 
     def _checked(self, sweep: Sweep, key_points: np.ndarray, required=None) -> Subsample:
         clean = sweep.finite()
+        if self.position_lag_s and len(clean):
+            # the path's position position_lag_s after each force (held at the sweep's ends)
+            clean = Sweep(clean.positions_at(clean.times + self.position_lag_s), clean.forces,
+                          clean.times, clean.pwm)
         if len(clean) < self.min_samples:
             raise SweepError(f'the sweep has {len(clean)} usable samples (of {len(sweep)}); at least '
                              f'{self.min_samples} are needed: sweep longer or check the streams')
