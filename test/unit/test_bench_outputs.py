@@ -358,6 +358,46 @@ def test_the_fourth_written_tunnels_load_and_their_effects_do_what_they_say():
     assert peaks(weak)[np.flatnonzero(edge)[0]] < peaks(busy)[np.flatnonzero(edge)[0]]
 
 
+def test_the_fifth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-02c: every file loads; the swirl drift moves each edge jet
+    along its circle about the axis, by drift T / (T + ref), one way for the 'higher' fans and
+    the other for the rest, and leaves the central jet; the contraction core grows with the
+    square of the total thrust; the ESC kink passes commands below its knee and bends them above
+    it, by another slope for each fan."""
+    geo, pos = _written_tunnels_load('written_2026-12-02c', count=3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    drift = make_effect('own_swirl_drift', drift=0.04, thrust_ref=3.0)
+    jets = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+    thrust = np.linspace(1.0, 4.0, n)
+    moved = drift.sources([jets], thrust, geo)[0].centres
+    r0, r1 = np.hypot(*pos.T), np.hypot(*moved.T)
+    edge = r0 > 0.05
+    np.testing.assert_allclose(r1[edge], r0[edge], rtol=1e-12)         # along the circle
+    np.testing.assert_allclose(moved[~edge], pos[~edge])               # the central jet stays
+    angle = np.arctan2(moved[:, 1], moved[:, 0]) - np.arctan2(pos[:, 1], pos[:, 0])
+    angle = (angle + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(np.abs(angle * r0)[edge], (0.04 * thrust / (thrust + 3.0))[edge], rtol=1e-9)
+    turn = np.sign(angle[edge])
+    higher = np.array(geo.fans.groups)[edge] == 'higher'
+    assert higher.any() and (~higher).any()
+    assert np.all(turn[higher] > 0) and np.all(turn[~higher] < 0)     # CCW against CW
+    core = make_effect('contraction_core', gain=0.02, thrust_ref=20.0, width=0.25)
+    def core_peak(t):
+        extra = core.sources([], np.full(n, t), geo)
+        return extra[0].amplitude[0] if extra else 0.0
+    assert core_peak(0.0) == 0.0
+    assert core_peak(2.0) == pytest.approx(0.02 * (2.0 * n) ** 2 / 20.0)
+    assert core_peak(4.0) == pytest.approx(4.0 * core_peak(2.0))     # twice the flow, four times
+    kink = make_effect('esc_kink', knee=0.3, spread=0.5, seed=7)
+    low, high = np.full(n, 0.25), np.full(n, 0.6)
+    np.testing.assert_allclose(kink.command(low, geo), low)           # below the knee: as sent
+    k = kink.slopes(n)
+    np.testing.assert_allclose(kink.command(high, geo), np.clip(0.6 + k * 0.3, 0, 1))
+    assert np.ptp(k) > 0.2                                             # each ESC its own slope
+
+
 def _no_jets():
     """An empty group of jets, for an effect that adds sources of its own."""
     from wind_shaper.sim.physics import FlatTop, JetGroup
