@@ -16,12 +16,20 @@ BIAS_MODES = ('never', 'fans_off', 'every_sweep')
 NO_BIAS, BIAS_AT_ROW, BIAS_BEFORE_ROW = '', 'at_row', 'before_row'
 
 
-def check_bias_mode(mode: str) -> str:
-    """``mode`` if it is one of ``BIAS_MODES``, else a ConfigError that lists them."""
+def check_bias_mode(mode: str, u_min: float = 0.0) -> str:
+    """``mode`` if it is one of ``BIAS_MODES``, else a ConfigError that lists them. ``u_min``
+    [fraction]: the lowest command the fans may receive; 'every_sweep' turns every fan off before
+    each sweep, which a tunnel whose fans must not go below u_min > 0 refuses (the fans would
+    never report 0, and a sensor biased with them running would take their force for its zero)."""
     if mode not in BIAS_MODES:
         raise ConfigError(f'bias_zero must be one of {", ".join(BIAS_MODES)}; got {mode!r} '
                           f'(never: leave the force sensor as it is; fans_off: bias on the sweeps '
                           f'with every fan off; every_sweep: before every sweep, with the fans off)')
+    if mode == 'every_sweep' and u_min > 0:
+        raise ConfigError(f'bias_zero every_sweep turns every fan off before each sweep, but the '
+                          f'lowest command the fans may receive is u_min = {u_min:g} '
+                          f'(shaping.u_min): set u_min to 0 if the fans may stop, or bias_zero to '
+                          f'never (or fans_off, for designed sweeps with every fan off)')
     return mode
 
 

@@ -50,7 +50,7 @@ class RigLink:
                               if p.sweep_service else None)
         self._stop_sweep_client = (node.create_client(Trigger, p.stop_sweep_service, callback_group=cb)
                                    if p.sweep_service and p.stop_sweep_service else None)
-        check_bias_mode(p.bias_zero)
+        check_bias_mode(p.bias_zero, node.setup.shaping.bounds.u_min)
         self._bias_client = (node.create_client(Trigger, names.FORCE_BIAS, callback_group=cb)
                              if p.bias_zero != 'never' else None)
         shaping = node.setup.shaping

@@ -11,6 +11,7 @@ from wind_shaper.app import Setup
 from wind_shaper.coordination import (BIAS_MODES, Experiment, FieldAnswer, ShapingRun, bias_plan,
                                       run_experiment, run_iteration)
 from wind_shaper.coordination.experiment import BIAS_AT_ROW, BIAS_BEFORE_ROW, NO_BIAS
+from wind_shaper.core.bias import check_bias_mode
 from wind_shaper.core.errors import ConfigError
 from wind_shaper.experiment import make_design
 from sim_ports import SimPorts
@@ -103,3 +104,12 @@ def test_a_shaping_iteration_refuses_an_unknown_bias_mode_before_touching_the_fa
     with pytest.raises(ConfigError, match='every_sweep'):
         asyncio.run(run_iteration(run, ports, run.prepare()[1], max_sweeps=1, bias_zero='hourly'))
     assert ports.log == [] and run.k == 0
+
+
+def test_biasing_before_every_sweep_is_refused_where_the_fans_may_not_stop():
+    """every_sweep turns every fan off before each sweep; with a lowest command above 0 the
+    fans would never report 0, so it is refused at once, with the setting to change."""
+    assert check_bias_mode('every_sweep', 0.0) == 'every_sweep'
+    assert check_bias_mode('fans_off', 0.1) == 'fans_off' and check_bias_mode('never', 0.1) == 'never'
+    with pytest.raises(ConfigError, match=r'u_min = 0\.1 .*set u_min to 0 .* or bias_zero to never'):
+        check_bias_mode('every_sweep', 0.1)

@@ -127,3 +127,17 @@ def test_a_loop_on_a_tunnel_that_cannot_bias_refuses_bias_zero(setup):
         _loop(setup, NoBias(setup.make_sim(seed=0)), 'every_sweep')
     with pytest.raises(ConfigError, match='never, fans_off, every_sweep'):
         _loop(setup, setup.make_sim(seed=0), 'sometimes')
+
+
+def test_a_loop_whose_fans_may_not_stop_refuses_to_bias_before_every_sweep(setup):
+    """shaping.u_min above 0: the loop cannot turn the fans off to bias the sensor."""
+    from dataclasses import replace
+
+    from wind_shaper.control import ShapingLoop
+    from wind_shaper.core.errors import ConfigError
+    shaping = replace(setup.shaping, u_min=0.05)
+    sim = setup.make_sim(seed=1)
+    target = setup.make_target('uniform').values(setup.geometry.key_points)
+    with pytest.raises(ConfigError, match='u_min = 0.05'):
+        ShapingLoop.from_settings(sim, setup.load_model(), target, shaping, u0=0.4, bias_zero='every_sweep')
+    ShapingLoop.from_settings(sim, setup.load_model(), target, shaping, u0=0.4, bias_zero='fans_off')
