@@ -95,7 +95,7 @@ class ShapingLoop:
                  on_progress: Callable[[SweepProgress], None] | None = None,
                  bias_zero: str = 'never'):
         geo = tunnel.geometry
-        self.bias_zero = check_bias_mode(bias_zero, getattr(getattr(rule, 'bounds', None), 'u_min', 0.0))
+        self.bias_zero = check_bias_mode(bias_zero, rule.bounds.u_min)
         if bias_zero != 'never' and not hasattr(tunnel, 'bias_sensor'):
             raise ConfigError(f'bias_zero {bias_zero!r} needs a tunnel that can bias its force '
                               f'sensor ({type(tunnel).__name__} has no bias_sensor); use never')
