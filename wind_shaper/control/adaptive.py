@@ -153,16 +153,7 @@ class AdaptiveUpdate:
     rule's) over that step: the run's maps seldom show a fan off, and the prior's curve is least
     known near the bottom of the range (a dead band, an idle disc's backflow, an ESC's crosstalk
     left out of the fit), while a fan that should be off is off two or three steps later.
-    ``info['held_on']`` says how many fans a step took half way down; 0: off;
-    noise_shrink: every step after the first is shortened by the share of its predicted gain
-    that a fit to the base's noise alone would promise (positive-part shrinkage): the step's
-    fans, fitted to ``fit_points`` independent points' worth of the base's map, take up about
-    (fans / fit_points) x the estimate's noise (the stopping rule's) divided by the maps pooled
-    at the base, so a step predicted to gain G goes max(0, 1 - that / G) of the way. Near the
-    optimum the base's map is mostly noise plus the model's error: steps there chase both, and
-    those along a valley the corrected prior sees as flat add up to a walk that ends higher than
-    it began; far from it G dwarfs the noise and the step is whole. ``info['shrink']`` is the
-    share taken (1: whole; 0: the next sweep measures the base's commands again).
+    ``info['held_on']`` says how many fans a step took half way down; 0: off.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -201,7 +192,6 @@ class AdaptiveUpdate:
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
     off_margin: float = 0.0
-    noise_shrink: bool = False
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -614,16 +604,6 @@ class AdaptiveUpdate:
         # the gain is predicted on the (pooled) residual; the error it is later compared with
         # is one map's, so the prediction is stated as one map would measure it
         improvement = float(np.mean(r_b ** 2)) - float(np.mean(pred_c ** 2))
-        share = 1.0
-        if self.noise_shrink and history and not restarted and improvement > 0 and idx.size:
-            dof = 1.0 if self.fit_points is None else min(1.0, idx.size / self.fit_points)
-            share = max(0.0, 1.0 - dof * err_noise / (pooled * improvement))
-            if share < 1.0:
-                U_next = self.bounds.project(U_b + share * (U_next - U_b), on)
-                if self.idle_below > self.bounds.u_min:
-                    U_next = np.where(on & (U_next < self.idle_below), self.bounds.u_min, U_next)
-                pred_c, _ = predict(U_next)
-                improvement = float(np.mean(r_b ** 2)) - float(np.mean(pred_c ** 2))
         predicted_error = float(errors[b]) - improvement
         stop, reason = stop_rule(inp.k, improvement, inp.std, history)
         if restarted:   # a new start: what the steps before it found does not count
@@ -642,7 +622,7 @@ class AdaptiveUpdate:
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason, 'ridge': ridge,
-                'held_on': held_on, 'shrink': float(share)}
+                'held_on': held_on}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
         # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within

@@ -721,29 +721,3 @@ def test_a_step_takes_a_running_fan_half_way_down_unless_switching_it_off_clearl
 def test_an_off_margin_below_zero_is_refused():
     with pytest.raises(ConfigError, match='off_margin'):
         AdaptiveUpdate(off_margin=-1.0)
-
-
-@pytest.mark.parametrize('offset,shortened', [(0.004, True), (0.1, False)])
-def test_a_step_is_shortened_by_the_gain_a_fit_to_noise_alone_would_promise(rig, prior, offset, shortened):
-    """The best commands differ from this map's by ``offset`` on one fan. Near the optimum
-    (0.004 PWM) the predicted gain is below what fitting the map's noise alone promises, so
-    with ``noise_shrink`` the step is not taken (share 0: the base is measured again); far
-    from it (0.1 PWM) the gain dwarfs the noise and the step is nearly whole. Without it, or
-    on a run's first update, the step is whole."""
-    kp = rig.key_points
-    U = np.full(7, 0.3)
-    best = U.copy()
-    best[1] += offset
-    target, field = prior(best, kp), prior(U, kp)
-    std = np.full(len(kp), 0.05)
-    past = [PastIteration(U + 0.2, prior(U + 0.2, kp), std, {'radius': 0.35})]
-    shrunk, whole = (AdaptiveUpdate(noise_shrink=on).step(_inputs(rig, prior, U, field, target, past, k=1, std=std))
-                     for on in (True, False))
-    assert whole.info['shrink'] == 1.0
-    moved, moved_whole = (float(np.max(np.abs(s.U_next - U))) for s in (shrunk, whole))
-    if shortened:
-        assert shrunk.info['shrink'] == 0.0 and moved == 0.0 and moved_whole > 1e-3
-    else:
-        assert 0.9 < shrunk.info['shrink'] < 1.0 and 0.9 * moved_whole < moved < moved_whole
-    first = AdaptiveUpdate(noise_shrink=True).step(_inputs(rig, prior, U, field, target, std=std))
-    assert first.info['shrink'] == 1.0
