@@ -65,6 +65,8 @@ _RANGES = {
     'commissioning_reach': (0, 1, 'a PWM fraction'),
     'pool_within': (0, 1, 'a PWM fraction'),
     'curve_sd': (0, 1, "a share of the fan's thrust"),
+    'shared_margin': (0, 1000, 'a log Bayes factor'),
+    'shared_curve_sd': (0, 1, "a share of every fan's thrust"),
     'curve_risk': (0, 10, "times the curves' posterior variance"),
     'ridge_share': (0, 10, "a share of the base's predicted error"),
     'spread_sd': (0, 1, "a share of each fan's force"),
@@ -186,6 +188,8 @@ class AdaptiveUpdate:
     commissioning_reach: float = 0.15
     commissioning_anchor: bool = True
     curve_sd: float = 0.0
+    shared_curve_sd: float = 0.0
+    shared_margin: float = 10.0
     curve_risk: float = 0.0
     ridge_share: float = 0.0
     level_map: bool = True
@@ -348,6 +352,7 @@ class AdaptiveUpdate:
         slope = 0.0   # the shared load slope of the gains (ShapeFit.load_sd), dense priors only
         spread = 0.0   # the share of the jets spread over the section (ShapeFit.spread_sd), the same
         curved = False   # whether the fit bent the fans' curves (``_curve_learnable``)
+        shared_curve = False   # whether it bent the curve they share (``shared_curve_sd``)
         curve_cov = None   # (n, K, K): the posterior covariance of each fan's curve weights
         if basis is not None and basis.sparse:
             # A large wall: per-fan gains only, on the Gram matrix of the footprints (cached per
@@ -368,9 +373,18 @@ class AdaptiveUpdate:
                            swirl=self.swirl and not basis.sparse, noise_std=self.noise_std,
                            gain_common_sd=self.gain_common_sd, load_sd=self.load_sd,
                            spread_sd=self.spread_sd, tilt_sd=self.tilt_sd,
-                           curve_sd=self.curve_sd if self._curve_learnable(inp, history, fit_from, relearn) else 0.0)
+                           curve_sd=self.curve_sd if self._curve_learnable(inp, history, fit_from, relearn) else 0.0,
+                           shared_curve_sd=self.shared_curve_sd, shared_margin=self.shared_margin)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
+                if fit.shared_curve_sd > 0 and fit.curved:
+                    # a curve every fan shares only where the commissioning's maps, which run every
+                    # fan across its range, show one (``ShapeFit.shared_margin``); not to explain
+                    # what the run's first maps, bunched at low commands, miss for other reasons
+                    probe = [(np.asarray(p.U, float), np.asarray(p.mean, float),
+                              share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
+                    shown = fit.shared_curve_used(fit.fit(basis, probe, on))
+                    fit = replace(fit, shared_curve_sd=self.shared_curve_sd if shown else 0.0, shared_margin=-np.inf)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
                         and self._still_commissioned(history, fit_from, relearn)):
                     # what the commissioning taught of each fan is the prior of the later fits:
@@ -393,6 +407,7 @@ class AdaptiveUpdate:
             slope = fit.load_slope(theta)
             spread = fit.spread_share(theta)
             curved = fit.curved
+            shared_curve = fit.shared_curve_used(theta)
             dload = np.where(on, 1.0 / max(1, int(on.sum())), 0.0)   # dL/dU
 
             def model(U):
@@ -617,7 +632,7 @@ class AdaptiveUpdate:
                 'rho': None if rho is None else float(rho), 'accepted': bool(accepted),
                 'secant_pairs': 0 if secant is None else int(secant.n_pairs_),
                 'quiet': bool(stop_rule.quiet(improvement, inp.std)), 'stop': bool(stop),
-                'load_slope': float(slope), 'spread_share': float(spread), 'curve': bool(curved), 'level_map': bool(n_level and fit_from < n_level),
+                'load_slope': float(slope), 'spread_share': float(spread), 'curve': bool(curved), 'shared_curve': bool(shared_curve), 'level_map': bool(n_level and fit_from < n_level),
                 'level_maps': n_level if fit_from < n_level else 0,
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,

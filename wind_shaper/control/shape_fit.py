@@ -32,6 +32,12 @@ CURVE_WIDTH = 0.1
 #: to fit (the bumps alone would sum to one and trade it against the gain's prior)
 _CURVE_MEANS = np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, 201) - c) / CURVE_WIDTH) ** 2))
                          for c in CURVE_CENTRES])
+#: The finer bumps of the curve every fan shares (``ShapeFit.shared_curve_sd``): each map shows
+#: it at every running fan's command, so it can be resolved finer than one fan's own.
+SHARED_CENTRES = np.linspace(0.025, 0.975, 20)
+SHARED_WIDTH = 0.05
+_SHARED_MEANS = np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, 401) - c) / SHARED_WIDTH) ** 2))
+                          for c in SHARED_CENTRES])
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,13 @@ class ShapeFit:
     #: stall dip or a dead band in one fan's curve, learned from the maps that ran it at
     #: different commands. 0: none. Dense priors only.
     curve_sd: float = 0.0
+    #: [-] with it > 0 (and curve_sd > 0) every fan's gain also follows one curve all fans
+    #: share, finer bumps (``SHARED_CENTRES``) with weights of prior 0 +- shared_curve_sd: fans of
+    #: one make stall or dead-band at the same command. 0: each fan's curve on its own.
+    shared_curve_sd: float = 0.0
+    #: the log Bayes factor (the maps' marginal likelihood with the shared curve over without
+    #: it) above which the fit bends it; -inf: always
+    shared_margin: float = 10.0
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
 
@@ -119,6 +132,17 @@ class ShapeFit:
     def curved(self) -> bool:
         return self.curve_sd > 0
 
+    @property
+    def _n_shared(self) -> int:
+        return len(SHARED_CENTRES) if self.curved and self.shared_curve_sd > 0 else 0
+
+    @staticmethod
+    def shared_bumps(U):
+        """phi (K2, n) and dphi/dU (K2, n): the shared curve's bumps at each fan's command."""
+        d = (np.asarray(U, float)[None, :] - SHARED_CENTRES[:, None]) / SHARED_WIDTH
+        phi = np.exp(-0.5 * d ** 2)
+        return phi - _SHARED_MEANS[:, None], -d / SHARED_WIDTH * phi
+
     @staticmethod
     def bumps(U):
         """phi (K, n) and dphi/dU (K, n): the curve correction's bumps at each fan's command."""
@@ -134,16 +158,21 @@ class ShapeFit:
         start = 1 + len(self.bases) * n
         c = np.asarray(theta[start:start + len(CURVE_CENTRES) * n], float).reshape(len(CURVE_CENTRES), n)
         phi, dphi = self.bumps(U)
-        return np.sum(c * phi, axis=0), np.sum(c * dphi, axis=0)
+        h, dh = np.sum(c * phi, axis=0), np.sum(c * dphi, axis=0)
+        if self._n_shared:
+            w = np.asarray(theta[start + len(CURVE_CENTRES) * n:start + len(CURVE_CENTRES) * n + self._n_shared], float)
+            phi, dphi = self.shared_bumps(U)
+            h, dh = h + w @ phi, dh + w @ dphi
+        return h, dh
 
     def prior(self, n: int):
         K = len(CURVE_CENTRES) * n * self.curved
         mean = np.concatenate([[0.0]] + [np.full(n, 1.0 if b == 'gain' else 0.0) for b in self.bases]
-                              + [np.zeros(K)] + [[0.0]] * self.swirl + [[0.0]] * self.loaded
+                              + [np.zeros(K + self._n_shared)] + [[0.0]] * self.swirl + [[0.0]] * self.loaded
                               + [[0.0]] * self.spread + [[0.0, 0.0]] * self.tilted)
         sd = {'gain': self.gain_sd, 'x': self.shift_sd, 'y': self.shift_sd, 'width': self.width_sd}
         std = np.concatenate([[self.offset_sd]] + [np.full(n, sd[b]) for b in self.bases]
-                             + [np.full(K, self.curve_sd)]
+                             + [np.full(K, self.curve_sd), np.full(self._n_shared, self.shared_curve_sd)]
                              + [[self.swirl_sd]] * self.swirl + [[self.load_sd]] * self.loaded
                              + [[self.spread_sd]] * self.spread + [[self.tilt_sd] * 2] * self.tilted)
         if self.prior_mean is not None:
@@ -198,6 +227,7 @@ class ShapeFit:
         P = len(mean)
         frozen = np.concatenate([[False]] + [~np.asarray(enabled, bool)] * len(mats)
                                 + [~np.asarray(enabled, bool)] * (len(CURVE_CENTRES) * self.curved)
+                                + [np.zeros(self._n_shared, bool)]
                                 + [[False]] * (self.swirl + self.loaded + self._tail))
         if basis.sparse:
             if self.curved:
@@ -230,12 +260,13 @@ class ShapeFit:
         if len(cache) > 64:
             cache.clear()
         for U, F, w in maps:
-            key = (self.bases, self.swirl, self.loaded, self.curved, self.spread, self.tilted, U.tobytes(), F.tobytes(),
+            key = (self.bases, self.swirl, self.loaded, self.curved, self._n_shared, self.spread, self.tilted, U.tobytes(), F.tobytes(),
                    w.tobytes(), mean.tobytes())
             hit = cache.get(key)
             if hit is None:
                 a, _ = basis.thrust(U)
                 curve = [basis.shape * (a * phi) for phi in self.bumps(U)[0]] if self.curved else []
+                curve += [basis.shape @ (a * phi) for phi in self.shared_bumps(U)[0][:self._n_shared]]
                 X = np.column_stack([np.ones(len(F))] + [B * a for B in mats] + curve
                                     + [self.balance(basis, a)[0] * (basis.rot @ a)] * self.swirl
                                     + [self.load(U, enabled) * (basis.shape @ a)] * self.loaded
@@ -253,6 +284,8 @@ class ShapeFit:
             g = 1 + self.bases.index('gain') * n + np.flatnonzero(~frozen[1:1 + n])
             m, sd2, c2 = len(g), self.gain_sd ** 2, self.gain_common_sd ** 2
             A[np.ix_(g, g)] -= self.noise_std ** 2 * c2 / (sd2 * (sd2 + m * c2))
+        if self._n_shared:
+            keep = self._shared_by_evidence(A, b, keep, n)
         theta = mean.copy()
         theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
         # Signs physics rules out: a shared supply or inlet can only give less as the load rises,
@@ -272,6 +305,34 @@ class ShapeFit:
         cov = np.zeros((P, P))
         cov[np.ix_(keep, keep)] = self.noise_std ** 2 * np.linalg.inv(A[np.ix_(keep, keep)])
         return theta, cov
+
+    def shared_curve_used(self, theta) -> bool:
+        """Whether the corrected prior bends the curve every fan shares (``shared_curve_sd``):
+        the maps' evidence favoured it here, or in the commissioning's fit this one starts from."""
+        if not self._n_shared:
+            return False
+        n = (len(theta) - 1 - self._n_shared - self.swirl - self.loaded - self._tail) // (len(self.bases) + len(CURVE_CENTRES))
+        return bool(np.any(np.asarray(theta)[self._shared_index(n)] != 0))
+
+    def _shared_index(self, n: int) -> np.ndarray:
+        start = 1 + len(self.bases) * n + len(CURVE_CENTRES) * n
+        return start + np.arange(self._n_shared)
+
+    def _shared_by_evidence(self, A, b, keep, n: int):
+        """keep, with the shared curve's weights dropped (held at 0) unless the maps' evidence
+        (the Gaussian linear model's marginal likelihood) favours the fit with them: a curve all
+        fans share is bent only where the maps show one, not to soak up other misfit."""
+        shared = np.zeros(len(keep), bool)
+        shared[self._shared_index(n)] = True
+        without = keep & ~shared
+
+        def fit_term(k):
+            Ak = A[np.ix_(k, k)]
+            return 0.5 * float(b[k] @ np.linalg.solve(Ak, b[k])) / self.noise_std ** 2 - 0.5 * np.linalg.slogdet(Ak)[1]
+
+        log_bf = (fit_term(keep) - fit_term(without)
+                  + 0.5 * self._n_shared * np.log(self.noise_std ** 2 / self.shared_curve_sd ** 2))
+        return keep if log_bf > self.shared_margin else without
 
     def curve_cov(self, cov, n: int) -> np.ndarray:
         """(n, K, K): each fan's block of ``cov`` for its curve weights (``curve_sd``; the

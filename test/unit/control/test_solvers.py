@@ -721,3 +721,89 @@ def test_a_step_takes_a_running_fan_half_way_down_unless_switching_it_off_clearl
 def test_an_off_margin_below_zero_is_refused():
     with pytest.raises(ConfigError, match='off_margin'):
         AdaptiveUpdate(off_margin=-1.0)
+
+
+def _dip_maps(rig, basis, rng, depth, width=0.08, n=8, other=None):
+    """n maps at scattered commands of a tunnel whose fans all dip around 0.3 PWM, each by its
+    own depth (0: no dip), plus ``other(U)`` [N] at the key points when given."""
+    def field(U):
+        a = basis.thrust(U)[0] * (1.0 - depth * np.exp(-((U - 0.3) / width) ** 2))
+        return basis.offset + basis.shape @ a + (0.0 if other is None else other(U))
+
+    maps = []
+    for _ in range(n):
+        U = rng.uniform(0.05, 0.65, 7)
+        maps.append((U, field(U) + 0.02 * rng.normal(size=len(rig.key_points)), np.ones(len(rig.key_points))))
+    return maps, field
+
+
+def _predict(basis, fit, theta, U):
+    a = basis.thrust(U)[0]
+    h = fit.curve(theta, U, 7)[0]
+    return fit.shape_matrix(basis, theta) @ a + theta[0] + basis.offset + basis.shape @ (a * h)
+
+
+def test_a_dip_every_fan_shares_is_learned_from_every_fans_maps(rig, prior, rng):
+    """Fans of one make stall at the same command, each by its own depth: eight maps at
+    scattered commands show each fan's curve at eight points only, too few to place a dip 0.08
+    PWM wide fan by fan, but together they show it at 56. With the shared curve the fit
+    predicts a map with every fan in the dip far better than with each fan's curve alone."""
+    basis = FanBasis.from_term(prior, rig.key_points)
+    maps, field = _dip_maps(rig, basis, rng, rng.uniform(0.25, 0.45, 7))
+    U = np.array([0.3, 0.29, 0.31, 0.3, 0.28, 0.32, 0.3])      # every fan in the dip
+
+    def miss(fit):
+        theta = fit.fit(basis, maps, rig.fans.enabled)
+        return float(np.sqrt(np.mean((_predict(basis, fit, theta, U) - field(U)) ** 2)))
+
+    own = miss(ShapeFit(noise_std=0.05, curve_sd=0.07))
+    assert miss(ShapeFit(noise_std=0.05, curve_sd=0.07, shared_curve_sd=0.1)) < 0.5 * own
+    assert miss(ShapeFit(noise_std=0.05)) > 1.5 * own     # and each fan's own curve helps too
+
+
+def test_the_shared_curve_stays_straight_where_the_maps_show_no_dip(rig, prior, rng):
+    """Misfit of another kind (one fan weak, a draft across the section, its jets landing off
+    their hubs) is not a dip every fan shares: the maps' evidence keeps the shared curve at 0,
+    and the fit is the one without it."""
+    basis = FanBasis.from_term(prior, rig.key_points)
+    x, y = rig.key_points[:, 0], rig.key_points[:, 1]
+
+    def other(U):
+        a = basis.thrust(U)[0]
+        return -0.3 * basis.shape[:, 2] * a[2] + 0.4 * basis.dx @ a + 0.5 * x + 0.3 * y
+
+    maps, _ = _dip_maps(rig, basis, rng, np.zeros(7), other=other)
+    shared = ShapeFit(noise_std=0.05, curve_sd=0.07, shared_curve_sd=0.1)
+    theta = shared.fit(basis, maps, rig.fans.enabled)
+    assert not shared.shared_curve_used(theta)
+    own = ShapeFit(noise_std=0.05, curve_sd=0.07)
+    np.testing.assert_allclose(shared.curve(theta, np.full(7, 0.3), 7)[0],
+                               own.curve(own.fit(basis, maps, rig.fans.enabled), np.full(7, 0.3), 7)[0], atol=1e-9)
+    dipped, _ = _dip_maps(rig, basis, np.random.default_rng(5), np.full(7, 0.35), other=other)
+    assert shared.shared_curve_used(shared.fit(basis, dipped, rig.fans.enabled))
+
+
+def test_a_shared_curve_sd_outside_its_range_is_refused():
+    with pytest.raises(ConfigError, match='shared_curve_sd'):
+        AdaptiveUpdate(shared_curve_sd=-0.1)
+
+
+def test_the_rule_bends_a_shared_curve_only_where_the_commissioning_shows_one(rig, prior, rng):
+    """The commissioning's maps run every fan across its range: the rule bends the curve the
+    fans share where they show a dip, and not where only the run's own map is off the prior."""
+    kp = rig.key_points
+    basis = FanBasis.from_term(prior, kp)
+    dipped, field = _dip_maps(rig, basis, rng, rng.uniform(0.25, 0.45, 7))
+    plain, _ = _dip_maps(rig, basis, rng, np.zeros(7))
+    U = np.full(7, 0.3)
+    target = prior(np.full(7, 0.35), kp)
+    rule = AdaptiveUpdate(curve_sd=0.07, shared_curve_sd=0.1)
+
+    def bent(maps, measured):
+        commissioning = [PastIteration(V, F, None, {}) for V, F, _ in maps]
+        return rule.step(_inputs(rig, prior, U, measured, target, prior_maps=commissioning)).info['shared_curve']
+
+    assert bent(dipped, field(U))
+    assert not bent(plain, field(U))
+    assert not AdaptiveUpdate(curve_sd=0.07).step(_inputs(rig, prior, U, field(U), target, prior_maps=[
+        PastIteration(V, F, None, {}) for V, F, _ in dipped])).info['shared_curve']
