@@ -319,7 +319,7 @@ class ShapeFit:
         return start + np.arange(self._n_shared)
 
     def _shared_by_evidence(self, A, b, keep, n: int):
-        """keep, with the shared curve's weights dropped (held at 0) unless the maps' evidence
+        """keep, with the shared curve's weights dropped (held at their prior mean) unless the maps' evidence
         (the Gaussian linear model's marginal likelihood) favours the fit with them: a curve all
         fans share is bent only where the maps show one, not to soak up other misfit."""
         shared = np.zeros(len(keep), bool)
