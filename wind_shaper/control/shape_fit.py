@@ -284,7 +284,7 @@ class ShapeFit:
             g = 1 + self.bases.index('gain') * n + np.flatnonzero(~frozen[1:1 + n])
             m, sd2, c2 = len(g), self.gain_sd ** 2, self.gain_common_sd ** 2
             A[np.ix_(g, g)] -= self.noise_std ** 2 * c2 / (sd2 * (sd2 + m * c2))
-        if self._n_shared:
+        if self._n_shared and self.shared_margin > -np.inf:   # -inf: bent without the test
             keep = self._shared_by_evidence(A, b, keep, n)
         theta = mean.copy()
         theta[keep] += np.linalg.solve(A[np.ix_(keep, keep)], b[keep])
