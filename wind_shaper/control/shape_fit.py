@@ -30,14 +30,23 @@ CURVE_CENTRES = np.linspace(0.05, 0.95, 10)
 CURVE_WIDTH = 0.1
 #: each bump's mean over the command range 0..1, taken off it: a constant factor is the gain's
 #: to fit (the bumps alone would sum to one and trade it against the gain's prior)
-_CURVE_MEANS = np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, 201) - c) / CURVE_WIDTH) ** 2))
-                         for c in CURVE_CENTRES])
+def _bump_means(centres, width, points):
+    return np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, points) - c) / width) ** 2)) for c in centres])
+
+
+def _bumps(U, centres, width, means):
+    """phi (K, n) and dphi/dU (K, n): Gaussian bumps less their means, at each fan's command."""
+    d = (np.asarray(U, float)[None, :] - centres[:, None]) / width
+    phi = np.exp(-0.5 * d ** 2)
+    return phi - means[:, None], -d / width * phi
+
+
+_CURVE_MEANS = _bump_means(CURVE_CENTRES, CURVE_WIDTH, 201)
 #: The finer bumps of the curve every fan shares (``ShapeFit.shared_curve_sd``): each map shows
 #: it at every running fan's command, so it can be resolved finer than one fan's own.
 SHARED_CENTRES = np.linspace(0.025, 0.975, 20)
 SHARED_WIDTH = 0.05
-_SHARED_MEANS = np.array([np.mean(np.exp(-0.5 * ((np.linspace(0, 1, 401) - c) / SHARED_WIDTH) ** 2))
-                          for c in SHARED_CENTRES])
+_SHARED_MEANS = _bump_means(SHARED_CENTRES, SHARED_WIDTH, 401)
 
 
 @dataclass(frozen=True)
@@ -139,16 +148,12 @@ class ShapeFit:
     @staticmethod
     def shared_bumps(U):
         """phi (K2, n) and dphi/dU (K2, n): the shared curve's bumps at each fan's command."""
-        d = (np.asarray(U, float)[None, :] - SHARED_CENTRES[:, None]) / SHARED_WIDTH
-        phi = np.exp(-0.5 * d ** 2)
-        return phi - _SHARED_MEANS[:, None], -d / SHARED_WIDTH * phi
+        return _bumps(U, SHARED_CENTRES, SHARED_WIDTH, _SHARED_MEANS)
 
     @staticmethod
     def bumps(U):
         """phi (K, n) and dphi/dU (K, n): the curve correction's bumps at each fan's command."""
-        d = (np.asarray(U, float)[None, :] - CURVE_CENTRES[:, None]) / CURVE_WIDTH
-        phi = np.exp(-0.5 * d ** 2)
-        return phi - _CURVE_MEANS[:, None], -d / CURVE_WIDTH * phi
+        return _bumps(U, CURVE_CENTRES, CURVE_WIDTH, _CURVE_MEANS)
 
     def curve(self, theta, U, n: int):
         """h (n,) and dh/dU (n,): what each fan's curve correction adds to its gain at its
@@ -319,9 +324,10 @@ class ShapeFit:
         return start + np.arange(self._n_shared)
 
     def _shared_by_evidence(self, A, b, keep, n: int):
-        """keep, with the shared curve's weights dropped (held at their prior mean) unless the maps' evidence
-        (the Gaussian linear model's marginal likelihood) favours the fit with them: a curve all
-        fans share is bent only where the maps show one, not to soak up other misfit."""
+        """keep, with the shared curve's weights dropped (held at their prior mean) unless the
+        maps' evidence (the Gaussian linear model's marginal likelihood) favours the fit with
+        them: a curve all fans share is bent only where the maps show one, not to soak up other
+        misfit."""
         shared = np.zeros(len(keep), bool)
         shared[self._shared_index(n)] = True
         without = keep & ~shared
