@@ -37,6 +37,7 @@ Its parts live beside it: ``basis`` (``FanBasis``, the prior fan by fan), ``shap
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -55,6 +56,26 @@ from .update import CommandBounds, UpdateInput, UpdateStep
 #: The prior's factorisation (``FanBasis``) for the current model and key points, one entry at a
 #: time (``AdaptiveUpdate._basis``).
 _BASIS_CACHE: dict[Any, Any] = {}
+
+#: Fits to the commissioning's maps alone (the shared curve's test, the anchor of later fits),
+#: which every step of a run would otherwise redo on the same maps (``_commissioning_fit``).
+_COMMISSIONING_FITS: dict[Any, Any] = {}
+
+
+def _commissioning_fit(fit: ShapeFit, basis: FanBasis, maps, on) -> np.ndarray:
+    """``fit.fit(basis, maps, on)``, remembered for the run: the same settings, prior, enabled
+    fans and maps (U, F, w, by a digest of their bytes) give the same theta."""
+    digest = hashlib.blake2b(digest_size=16)
+    for U, F, w in maps:
+        for part in (U, F, w):
+            digest.update(np.ascontiguousarray(part, dtype=float).tobytes())
+    key = (fit, id(basis), np.asarray(on, bool).tobytes(), digest.digest())
+    hit = _COMMISSIONING_FITS.get(key)
+    if hit is None or hit[0] is not basis:
+        if len(_COMMISSIONING_FITS) >= 8:
+            _COMMISSIONING_FITS.clear()
+        hit = _COMMISSIONING_FITS[key] = (basis, fit.fit(basis, maps, on))
+    return hit[1].copy()
 
 
 #: Settings checked against a range: name -> (low, high, what the number is).
@@ -383,7 +404,7 @@ class AdaptiveUpdate:
                     # what the run's first maps, bunched at low commands, miss for other reasons
                     probe = [(np.asarray(p.U, float), np.asarray(p.mean, float),
                               share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
-                    shown = fit.shared_curve_used(fit.fit(basis, probe, on))
+                    shown = fit.shared_curve_used(_commissioning_fit(fit, basis, probe, on))
                     fit = replace(fit, shared_curve_sd=self.shared_curve_sd if shown else 0.0, shared_margin=-np.inf)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
                         and self._still_commissioned(history, fit_from, relearn)):
@@ -391,7 +412,7 @@ class AdaptiveUpdate:
                     # a fan the run has not run yet keeps it instead of falling back to the prior's
                     anchor = [(np.asarray(p.U, float), np.asarray(p.mean, float),
                                share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
-                    fit = replace(fit, prior_mean=tuple(fit.fit(basis, anchor, on)))
+                    fit = replace(fit, prior_mean=tuple(_commissioning_fit(fit, basis, anchor, on)))
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
                 abs_maps += [(U, F, share * w) for U, F, w in broad]

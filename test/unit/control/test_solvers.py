@@ -807,3 +807,26 @@ def test_the_rule_bends_a_shared_curve_only_where_the_commissioning_shows_one(ri
     assert not bent(plain, field(U))
     assert not AdaptiveUpdate(curve_sd=0.07).step(_inputs(rig, prior, U, field(U), target, prior_maps=[
         PastIteration(V, F, None, {}) for V, F, _ in dipped])).info['shared_curve']
+
+
+def test_a_fit_to_the_commissioning_maps_is_remembered_only_for_the_same_maps(rig, prior, rng):
+    """Every step of a run refits the commissioning's maps alone (the shared curve's test, the
+    anchor); the remembered fit is the fit itself, and another map, setting or fan set is not
+    served the old one."""
+    from dataclasses import replace
+    from wind_shaper.control.adaptive import _commissioning_fit
+    basis = FanBasis.from_term(prior, rig.key_points)
+    maps, _ = _dip_maps(rig, basis, rng, rng.uniform(0.25, 0.45, 7))
+    on = np.asarray(rig.fans.enabled, bool)
+    fit = ShapeFit(noise_std=0.05, curve_sd=0.07, shared_curve_sd=0.1)
+    first = _commissioning_fit(fit, basis, maps, on)
+    np.testing.assert_array_equal(first, fit.fit(basis, maps, on))
+    np.testing.assert_array_equal(_commissioning_fit(fit, basis, maps, on), first)
+    moved = [(U, F + (0.05 if i == 3 else 0.0), w) for i, (U, F, w) in enumerate(maps)]
+    np.testing.assert_array_equal(_commissioning_fit(fit, basis, moved, on), fit.fit(basis, moved, on))
+    assert not np.array_equal(_commissioning_fit(fit, basis, moved, on), first)
+    own = replace(fit, shared_curve_sd=0.0)
+    np.testing.assert_array_equal(_commissioning_fit(own, basis, maps, on), own.fit(basis, maps, on))
+    off = on.copy()
+    off[2] = False
+    np.testing.assert_array_equal(_commissioning_fit(fit, basis, maps, off), fit.fit(basis, maps, off))
