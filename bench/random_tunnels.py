@@ -20,6 +20,7 @@ Usage: python bench/random_tunnels.py [--count 12] [--seed 2026] [--effects 3] [
                                       [--iterations 12] [--targets uniform,parabolic,gaussian@LM1]
                                       [--set NAME=VALUE ...] [--jobs N] [--quick] [--json FILE]
        python bench/random_tunnels.py --summary-from bench/out/random_tunnels.json
+       python bench/random_tunnels.py --seed 2033 --shared-curve-verdicts [--set shared_curve_sd=0.1]
 Results: bench/out/random_tunnels.json (--quick: random_tunnels_quick.json), the tunnel files in
 bench/out/random_tunnels/.
 """
@@ -155,6 +156,28 @@ def benchmark_tunnel(job) -> list[dict]:
     return rows
 
 
+def shared_curve_verdict(job) -> bool:
+    """Whether the update bends the curve every fan shares on this tunnel (``shared_curve_sd``
+    from ``rule``): the prior commissioned as for the benchmark, then one update from the flat
+    start, whose fit always takes the commissioning's maps. The verdict rests on those maps
+    alone, so it is the same at every step, for every target and both starts; a tunnel where it
+    is False runs exactly as without the setting."""
+    tunnel, rule = job
+    from wind_shaper.control.loop import ShapingLoop
+    convergence.OWN_TUNNELS.clear()
+    convergence.OWN_TUNNELS[tunnel['name']] = (tunnel['effects'], ['uniform'])
+    with tempfile.TemporaryDirectory() as tmp:
+        plant = convergence.make_plants([tunnel['name']], Path(tmp))[0]
+        shaping = plant.setup.shaping
+        target = plant.setup.make_target('uniform').values(plant.setup.geometry.key_points)
+        loop = ShapingLoop(plant.sim(0), plant.prior, target, shaping.make_rule(**rule),
+                           shaping.make_estimator(plant.prior), u0=0.5,
+                           n_samples=shaping.samples_per_sweep, sweep_length=shaping.make_sweep_length(),
+                           fan_settle_s=shaping.fan_settle_s, model_error=plant.model_error,
+                           prior_maps=plant.prior_maps)
+        return bool(loop.iterate(update=True).info.get('shared_curve'))
+
+
 def print_results(rows):
     """The shipped default against the flat start per case (convergence.py's verdicts), then
     one line per case: the ratios at k = 0, 1, 2, 4, 12, plate seconds, the std's calibration."""
@@ -187,6 +210,10 @@ def main(argv=None):
     ap.add_argument('--json', default=None)
     ap.add_argument('--summary-from', default=None, metavar='JSON',
                     help='print the verdicts and the table of a results file, run nothing')
+    ap.add_argument('--shared-curve-verdicts', action='store_true',
+                    help='per tunnel, only whether the update bends the curve every fan shares '
+                         '(shared_curve_sd, 0.1 unless --set): the tunnels where that setting '
+                         'changes a run; seconds per tunnel')
     args = ap.parse_args(argv)
     if args.summary_from:
         print_results(json.loads(Path(args.summary_from).read_text())['cases'])
@@ -227,6 +254,16 @@ def main(argv=None):
         (files / f'tunnel_{args.seed}_{i}.yaml').write_text(
             yaml.safe_dump({**tunnel, 'targets': targets}, sort_keys=False))
     t0 = time.perf_counter()
+    if args.shared_curve_verdicts:
+        rule = {'shared_curve_sd': 0.1, **methods[next(iter(methods))]['rule']}
+        verdicts = [shared_curve_verdict((tunnel, rule)) for tunnel in tunnels]
+        for tunnel, bent in zip(tunnels, verdicts):
+            print(f"{tunnel['name']}: {'bent' if bent else 'straight'}")
+        meta = {'count': args.count, 'seed': args.seed, 'effects': args.effects, 'rule': rule}
+        Path(args.json).write_text(json.dumps({'meta': meta, 'shared_curve': {
+            t['name']: v for t, v in zip(tunnels, verdicts)}}, indent=1))
+        print(f'wrote {args.json}')
+        return
     jobs = [(tunnel, targets, methods, args.seeds, args.iterations, args.quick, args.first_seed)
             for tunnel in tunnels]
     if args.jobs > 1:

@@ -71,3 +71,16 @@ def test_the_docs_tables_come_from_the_results_files(capsys):
         for row in rows:
             cells = row.split(' | ')
             assert ' | '.join(cells[:3] + cells[4:]) in docs, cells[0]
+
+
+def test_the_shared_curve_verdict_names_the_tunnels_where_the_setting_changes_a_run(tmp_path, capsys):
+    """A drawn stall dip every fan shares is bent; a tunnel without one is not, and the file
+    says so per tunnel."""
+    out = tmp_path / 'verdicts.json'
+    bench.main(['--seed', '2033', '--quick', '--shared-curve-verdicts', '--json', str(out)])
+    assert json.loads(out.read_text())['shared_curve'] == {
+        'random 2033-0: coflow_carry + vane_ripple + diffuser_separation': False}
+    assert 'straight' in capsys.readouterr().out
+    dipped = bench.draw_tunnels(8, 2033, 3)[7]
+    assert 'stall_dip' in dipped['name']
+    assert bench.shared_curve_verdict((dipped, {'method': 'adaptive', 'shared_curve_sd': 0.1}))
