@@ -398,21 +398,19 @@ class AdaptiveUpdate:
                            shared_curve_sd=self.shared_curve_sd, shared_margin=self.shared_margin)
             if fitted:
                 share = 1.0 if self.fit_points is None else min(1.0, self.fit_points / N)
+                commissioned = [(np.asarray(p.U, float), np.asarray(p.mean, float),
+                                 share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
                 if fit.shared_curve_sd > 0 and fit.curved:
                     # a curve every fan shares only where the commissioning's maps, which run every
                     # fan across its range, show one (``ShapeFit.shared_margin``); not to explain
                     # what the run's first maps, bunched at low commands, miss for other reasons
-                    probe = [(np.asarray(p.U, float), np.asarray(p.mean, float),
-                              share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
-                    shown = fit.shared_curve_used(_commissioning_fit(fit, basis, probe, on))
+                    shown = fit.shared_curve_used(_commissioning_fit(fit, basis, commissioned, on))
                     fit = replace(fit, shared_curve_sd=self.shared_curve_sd if shown else 0.0, shared_margin=-np.inf)
                 if (self.commissioning_anchor and history and inp.prior_maps and self.commissioning_weight > 0
                         and self._still_commissioned(history, fit_from, relearn)):
                     # what the commissioning taught of each fan is the prior of the later fits:
                     # a fan the run has not run yet keeps it instead of falling back to the prior's
-                    anchor = [(np.asarray(p.U, float), np.asarray(p.mean, float),
-                               share * self._fit_weight(p, self.commissioning_weight)) for p in inp.prior_maps]
-                    fit = replace(fit, prior_mean=tuple(_commissioning_fit(fit, basis, anchor, on)))
+                    fit = replace(fit, prior_mean=tuple(_commissioning_fit(fit, basis, commissioned, on)))
                 abs_maps = [(maps[i][0], maps[i][1] + ref, share * near[i] * weights[i] / noise2[i] * self.noise_std ** 2)
                             for i in window]
                 abs_maps += [(U, F, share * w) for U, F, w in broad]
