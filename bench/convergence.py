@@ -491,6 +491,22 @@ class _TimedTunnel:
         return self._t.measure_at(positions, samples_per_point)
 
 
+def make_loop(plant: Plant, target_values, cfg: dict, tunnel, short: bool = True) -> ShapingLoop:
+    """The shaping loop of one run of method ``cfg`` on ``tunnel`` (the plant's simulator, or a
+    wrapper of it): the rule, sweep length and estimator from the plant's shaping settings.
+    ``short``: sweeps shortened as the shipped sweep length does (the static grid records for a
+    fixed time, so not there)."""
+    shaping = plant.setup.shaping
+    length = shaping.make_sweep_length() if short else SweepLength(adaptive=False)
+    if short and 'region' in cfg:
+        length = replace(length, region={**dict(length.region or {}), 'enabled': cfg['region']})
+    return ShapingLoop(tunnel, plant.prior, target_values, shaping.make_rule(**cfg['rule']),
+                       shaping.make_estimator(plant.prior), u0=cfg['u0'],
+                       n_samples=shaping.samples_per_sweep, sweep_length=length,
+                       fan_settle_s=shaping.fan_settle_s, model_error=plant.model_error,
+                       prior_maps=plant.prior_maps, bias_zero=cfg.get('bias_zero', 'never'))
+
+
 def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: int,
                source: str = 'plate') -> dict:
     """One run: per iteration the true MSE, plate and settle seconds, CPU [s], stop advice.
@@ -504,16 +520,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
         tunnel = _TimedTunnel(StaticSensorGrid(sim))
     else:
         tunnel = _TimedTunnel(sim)
-    rule = setup.shaping.make_rule(**cfg['rule'])
-    short = cfg['short'] and source == 'plate'   # the static grid records for a fixed time
-    length = setup.shaping.make_sweep_length() if short else SweepLength(adaptive=False)
-    if short and 'region' in cfg:
-        length = replace(length, region={**dict(length.region or {}), 'enabled': cfg['region']})
-    estimator = setup.shaping.make_estimator(plant.prior)
-    loop = ShapingLoop(tunnel, plant.prior, target_values, rule, estimator,
-                       u0=cfg['u0'], n_samples=setup.shaping.samples_per_sweep, sweep_length=length,
-                       fan_settle_s=setup.shaping.fan_settle_s, model_error=plant.model_error,
-                       prior_maps=plant.prior_maps, bias_zero=cfg.get('bias_zero', 'never'))
+    loop = make_loop(plant, target_values, cfg, tunnel, short=cfg['short'] and source == 'plate')
     out = {'mse': [], 'pwm': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
            'mismatch': None, 'restart': None, 'relearned': 0, 'z': []}
     for i in range(iterations + 1):

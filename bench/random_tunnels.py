@@ -163,18 +163,12 @@ def shared_curve_verdict(job) -> bool:
     alone, so it is the same at every step, for every target and both starts; a tunnel where it
     is False runs exactly as without the setting."""
     tunnel, rule = job
-    from wind_shaper.control.loop import ShapingLoop
     convergence.OWN_TUNNELS.clear()
     convergence.OWN_TUNNELS[tunnel['name']] = (tunnel['effects'], ['uniform'])
     with tempfile.TemporaryDirectory() as tmp:
         plant = convergence.make_plants([tunnel['name']], Path(tmp))[0]
-        shaping = plant.setup.shaping
         target = plant.setup.make_target('uniform').values(plant.setup.geometry.key_points)
-        loop = ShapingLoop(plant.sim(0), plant.prior, target, shaping.make_rule(**rule),
-                           shaping.make_estimator(plant.prior), u0=0.5,
-                           n_samples=shaping.samples_per_sweep, sweep_length=shaping.make_sweep_length(),
-                           fan_settle_s=shaping.fan_settle_s, model_error=plant.model_error,
-                           prior_maps=plant.prior_maps)
+        loop = convergence.make_loop(plant, target, {'rule': rule, 'u0': 0.5}, plant.sim(0))
         return bool(loop.iterate(update=True).info.get('shared_curve'))
 
 
