@@ -429,3 +429,27 @@ def test_a_set_value_is_json_where_it_parses_and_text_otherwise():
     conv = _load('convergence')
     assert conv._value('0.5') == 0.5 and conv._value('true') is True and conv._value('[1, 2]') == [1, 2]
     assert conv._value('thrust') == 'thrust' and conv._value('footprint') == 'footprint'
+
+
+def test_the_sixth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-03: every file loads; the two makes' dips sit at one
+    command for the 'higher' fans and at another for the rest, each fan its own depth; the frame
+    resonance costs every fan a share that grows with the number of fans running near it."""
+    geo, pos = _written_tunnels_load('written_2026-12-03')
+    from wind_shaper.sim import make_effect
+    n = len(pos)
+    higher = np.array(geo.fans.groups) == 'higher'
+    dips = make_effect('mixed_make_dips', depth=0.3, at_higher=0.4, at_others=0.6, width=0.05, seed=2)
+    d = dips.depths(n)
+    assert np.ptp(d) > 0.05                                           # each fan its own depth
+    np.testing.assert_allclose(dips.command(np.full(n, 0.4), geo)[higher], 0.4 * (1 - d[higher]))
+    np.testing.assert_allclose(dips.command(np.full(n, 0.6), geo)[~higher], 0.6 * (1 - d[~higher]))
+    far = dips.command(np.full(n, 0.4), geo)[~higher]                 # 4 widths from their dip
+    np.testing.assert_allclose(far, 0.4, rtol=1e-6)
+    shake = make_effect('frame_resonance', loss=0.2, at=0.5, width=0.04)
+    np.testing.assert_allclose(shake.command(np.full(n, 0.5), geo), 0.5 * 0.8)    # all at it
+    one = np.full(n, 0.7)
+    one[0] = 0.5                                                      # one fan at it: all lose
+    np.testing.assert_allclose(shake.command(one, geo), one * (1 - 0.2 / n), rtol=1e-6)
+    np.testing.assert_allclose(shake.command(np.full(n, 0.7), geo), 0.7, rtol=1e-6)
+    np.testing.assert_allclose(shake.command(np.zeros(n), geo), 0.0)
