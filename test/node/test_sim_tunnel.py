@@ -170,9 +170,12 @@ def test_mavlink_commands_drive_the_plant(harness):
         assert wait_for(lambda: len(link.applied) == 7, 2.0)
         assert [link.applied[n] for n in FANS] == pytest.approx(wanted, abs=1e-3)
         # diagnostics (1 Hz) tell the applied PWMs and who is connected
-        assert wait_for(lambda: any(
-            'HM2=0.500' in kv.value for d in h.diagnostics[-1:] for kv in d.status[0].values), 3.0)
-        values = {kv.key: kv.value for kv in h.diagnostics[-1].status[0].values}
+        def latest():
+            return {kv.key: kv.value for d in h.diagnostics[-1:] for kv in d.status[0].values}
+        # one report that has both: the field is recomputed after the command lands
+        assert wait_for(lambda: any('HM2=0.500' in v for v in latest().values())
+                        and latest().get('force_field_current') == 'true', 6.0), latest()
+        values = latest()
         assert values['mavlink_peer'] != 'None' and values['force_field_current'] == 'true'
     finally:
         link.close()
@@ -189,10 +192,14 @@ def test_netft_streams_the_plate_force_where_the_plate_is(harness):
                          on_sample=lambda s, stats: samples.append(s), local_host='127.0.0.1')
     try:
         client.start()
-        assert wait_for(lambda: len(samples) >= 300, 3.0), f'only {len(samples)} RDT records'
+        assert wait_for(lambda: len(samples) >= 300, 6.0), f'only {len(samples)} RDT records'
         t0, n0 = time.monotonic(), len(samples)
-        time.sleep(0.5)
-        rate = (len(samples) - n0) / (time.monotonic() - t0)
+        first = samples[n0 - 1].rdt_sequence
+        time.sleep(1.0)
+        # the sensor's own count of what it streamed (skipped records included), so a loaded
+        # machine that delays this process does not read as a slow sensor
+        rate = (samples[-1].rdt_sequence - first) / (time.monotonic() - t0)
+        delivered = (len(samples) - n0) / max(samples[-1].rdt_sequence - first, 1)
     finally:
         client.close()
     true = live.tunnel.true_field(pwm, [(0.1, -0.05)])[0]
@@ -201,11 +208,12 @@ def test_netft_streams_the_plate_force_where_the_plate_is(harness):
     assert np.allclose(fz, true, atol=0.01 * true), f'Fz {fz.min():.3f}..{fz.max():.3f} != {true:.3f}'
     assert np.allclose([s.force[:2] for s in samples], 0.0)
     assert 800 < rate < 1200, f'RDT rate {rate:.0f} Hz, expected ~1000'
+    assert delivered > 0.5, f'only {100 * delivered:.0f} % of the streamed records arrived'
 
 
 def test_mocap_poses_give_the_plate_back_through_the_relay_transform(harness):
     h = harness(rest_position=[0.05, -0.3], plate_height_m=0.4)
-    assert wait_for(lambda: len(h.poses) >= 100, 3.0), f'only {len(h.poses)} poses'
+    assert wait_for(lambda: len(h.poses) >= 100, 6.0), f'only {len(h.poses)} poses'
     stamps = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in h.poses[:100]])
     assert np.diff(stamps) == pytest.approx(0.01, abs=1e-6)   # capture times of 100 Hz frames
     relay = PlateRelay(RigidTransform.from_xyz_quat(TUNNEL_FROM_MOCAP), OFFSET)
