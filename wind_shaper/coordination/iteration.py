@@ -395,15 +395,17 @@ async def run_iteration(run: ShapingRun, ports: RigPorts, rule, *, max_sweeps: i
     k, U = run.k, run.U.copy()
     stamps = {'started': clock()}
     bias = bias_plan(U, bias_zero)[0]
-    # 1. commanding (after a bias with every fan off, when asked)
-    run.command = U
+    # 1. commanding (after a bias with every fan off, when asked). ``run.command`` is what the
+    # node publishes to the fans, so it is set to each command before the port waits for it.
     if bias == BIAS_BEFORE_ROW:
         ports.set_state(COMMANDING, f'iteration {k}: every fan off to bias the force sensor')
-        await ports.command_fans(np.zeros_like(U))
+        run.command = np.zeros_like(U)
+        await ports.command_fans(run.command)
         await ports.bias_sensor()
         stamps['biased'] = clock()
         ports.check_boundary()
     ports.set_state(COMMANDING, f'iteration {k}: commanding the fans')
+    run.command = U
     await ports.command_fans(U)
     stamps['applied'] = clock()
     if bias == BIAS_AT_ROW:

@@ -74,6 +74,11 @@ class RigLink:
 
     async def command_fans(self, U: np.ndarray) -> None:
         p = self.params
+        told = self.book.command_in_force()
+        if told is None or not np.allclose(told, U):
+            # the node publishes the command in force: waiting for another would only time out
+            raise RuntimeError(f'command_fans({np.round(U, 4).tolist()}) while the command in force '
+                               f'is {None if told is None else np.round(told, 4).tolist()}')
         self.node.publish_command()
         reason = await self._waits.wait(
             None, self._waits.remaining(p.apply_timeout_s),

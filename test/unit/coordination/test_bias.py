@@ -35,12 +35,16 @@ def test_an_unknown_mode_is_refused_with_the_modes_it_knows():
 class BiasPorts(SimPorts):
     """SimPorts that log the fans' commands and the bias requests in order."""
 
-    def __init__(self, setup):
+    def __init__(self, setup, run=None):
         super().__init__(setup)
         self.log = []
+        self.run = run
 
     async def command_fans(self, U):
         self.log.append(('fans', tuple(np.round(U, 3))))
+        if self.run is not None:
+            # the coordinator publishes the run's command in force, so it must be the one waited for
+            assert np.allclose(self.run.command, U), (self.run.command, U)
         await super().command_fans(U)
 
     async def estimate(self, k, U, plan=None):  # the estimate is not what this test is about
@@ -79,7 +83,7 @@ def test_run_experiment_biases_after_the_fans_off_rows_settle_or_before_every_ro
 
 def _iterate(setup, tmp_path, mode, iterations=2):
     run = ShapingRun.open(setup, tmp_path, 'biased', 'parabolic', {'test': True})
-    ports = BiasPorts(setup)
+    ports = BiasPorts(setup, run)
     for _ in range(iterations):
         _, rule = run.prepare()
         data = asyncio.run(run_iteration(run, ports, rule, max_sweeps=1, bias_zero=mode))
