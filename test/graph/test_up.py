@@ -102,7 +102,9 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     assert 'std_factor: 2.0 ' in text
     shaping.write_text(text.replace('std_factor: 2.0 ', 'std_factor: 3.0 '))
     # and the force sensor biased first, every fan off (bias_zero every_sweep: a drifting zero)
-    u = up('--iterations', '1', '--target', 'parabolic', '--run-name', 'short-sweep',
+    # two iterations: the second starts with the fans at the first's next commands, so its
+    # bias needs them told off (not merely found off, as they are when the graph starts)
+    u = up('--iterations', '2', '--target', 'parabolic', '--run-name', 'short-sweep',
            '--set', 'coordinator.sweep_duration_s=40.0', '--set', 'coordinator.sweep_min_s=3.0',
            '--set', 'coordinator.settle_s=0.5', '--set', 'coordinator.max_sweeps=3',
            '--set', 'coordinator.bias_zero=every_sweep', '--config', str(config))
@@ -127,3 +129,6 @@ def test_a_sweep_ends_once_the_estimate_is_good_enough(up, tmp_path):
     stamps = record['timestamps']
     assert stamps['started'] < stamps['biased'] < stamps['applied'] < stamps['sweep_started'], stamps
     assert record['info']['settle_s'] >= 2 * 0.5, record['info']
+    second = json.loads((tmp_path / 'runs' / 'short-sweep' / 'iterations' / 'k001' / 'record.json').read_text())
+    stamps = second['timestamps']
+    assert stamps['started'] < stamps['biased'] < stamps['applied'] < stamps['sweep_started'], stamps
