@@ -453,3 +453,45 @@ def test_the_sixth_written_tunnels_load_and_their_effects_do_what_they_say():
     np.testing.assert_allclose(shake.command(one, geo), one * (1 - 0.2 / n), rtol=1e-6)
     np.testing.assert_allclose(shake.command(np.full(n, 0.7), geo), 0.7, rtol=1e-6)
     np.testing.assert_allclose(shake.command(np.zeros(n), geo), 0.0)
+
+
+def test_the_seventh_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-03b: every file loads; the shear layers add force between
+    neighbours by the square of their speeds' difference (nothing between equal ones), and the
+    plenum's vortex turns the field nearly all the way one sense or the other with the balance."""
+    geo, pos = _written_tunnels_load('written_2026-12-03b')
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+
+    def jets():
+        return [JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))]
+    shear = make_effect('shear_layer_turbulence', strength=0.2)
+    even = shear.sources(jets(), np.full(n, 4.0), geo)
+    assert len(even) == 2 and np.allclose(even[1].amplitude, 0.0)     # equal neighbours: none
+    thrust = np.full(n, 1.0)
+    thrust[-1] = 9.0                                                  # the central fan 3x the speed
+    layers = shear.sources(jets(), thrust, geo)[1]
+    assert len(layers) > 0 and np.all(layers.fan == -1)               # no fan's own jet
+    from wind_shaper.core.geometry import neighbour_pairs
+    pairs = neighbour_pairs(pos, 1.2)
+    touches = np.any(pairs == n - 1, axis=1)
+    assert touches.any() and not touches.all()
+    np.testing.assert_allclose(layers.amplitude[touches], 0.2 * (3.0 - 1.0) ** 2)
+    np.testing.assert_allclose(layers.amplitude[~touches], 0.0)
+    np.testing.assert_allclose(layers.centres, 0.5 * (pos[pairs[:, 0]] + pos[pairs[:, 1]]))
+    lock = make_effect('plenum_swirl_lock', turn=0.1, balance=0.05)
+    spin = np.asarray(geo.fans.spin_sign, float)
+    level = np.where(spin > 0, 1.0 / np.sum(spin > 0), 1.0 / np.sum(spin < 0))   # balanced
+    assert abs(lock.angle(level, geo)) < 1e-12
+    lean = level * np.where(spin > 0, 1.1, 1.0)                       # 10 % more on one sense
+    b = float(spin @ lean) / float(lean.sum())
+    assert 0 < b < 0.1
+    np.testing.assert_allclose(lock.angle(lean, geo), 0.1 * np.tanh(b / 0.05))
+    assert lock.angle(lean, geo) > 0.04                               # most of the way at b < 0.05
+    assert lock.angle(level * np.where(spin > 0, 1.0, 1.1), geo) < -0.04
+    point = np.array([[0.1, 0.0]])
+    turned = lock.warp(point, lean, geo)                              # read the unturned field at R(-theta) p
+    theta = lock.angle(lean, geo)
+    np.testing.assert_allclose(turned, [[0.1 * np.cos(theta), -0.1 * np.sin(theta)]], atol=1e-12)
+    assert lock.angle(np.zeros(n), geo) == 0.0
