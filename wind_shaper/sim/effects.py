@@ -120,6 +120,16 @@ class HiddenEffect:
             raise EffectError(f'{type(self).__name__}: {exc}') from None
 
 
+def fan_landings(groups, n_fans: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where each fan's jet lands (n_fans, 2) [m] and its width (n_fans,) [m], read from the
+    jet groups (a fan with no source: at the origin, width 1)."""
+    centre, width = np.zeros((n_fans, 2)), np.ones(n_fans)
+    for g in groups:
+        ok = g.fan >= 0
+        centre[g.fan[ok]], width[g.fan[ok]] = g.centres[ok], g.width[ok]
+    return centre, width
+
+
 def _fan_rows(groups, fan):
     return [(g, g.index_of(fan)) for g in groups if len(g.index_of(fan))]
 
@@ -231,11 +241,7 @@ class JetInteraction(HiddenEffect):
         pairs = self.pairs(geometry)
         if self.strength == 0 or len(pairs) == 0:
             return groups
-        n = geometry.fans.n_fans
-        centre, width = np.zeros((n, 2)), np.ones(n)
-        for g in groups:
-            ok = g.fan >= 0
-            centre[g.fan[ok]], width[g.fan[ok]] = g.centres[ok], g.width[ok]
+        centre, width = fan_landings(groups, geometry.fans.n_fans)
         i, j = pairs[:, 0], pairs[:, 1]
         w = np.full(len(pairs), self.width) if self.width else 0.5 * (width[i] + width[j])
         amp = self.strength * np.sqrt(np.maximum(thrust[i], 0) * np.maximum(thrust[j], 0))

@@ -9,7 +9,7 @@ import numpy as np
 
 from wind_shaper.core.geometry import neighbour_pairs
 from wind_shaper.sim import register_effects
-from wind_shaper.sim.effects import HiddenEffect
+from wind_shaper.sim.effects import HiddenEffect, fan_landings
 from wind_shaper.sim.physics import FlatTop, JetGroup
 
 
@@ -36,11 +36,7 @@ class ShearLayerTurbulence(HiddenEffect):
         pairs = neighbour_pairs(geometry.fans.positions, self.reach)
         if self.strength == 0 or len(pairs) == 0:
             return groups
-        n = geometry.fans.n_fans
-        centre, width = np.zeros((n, 2)), np.ones(n)
-        for g in groups:
-            ok = g.fan >= 0
-            centre[g.fan[ok]], width[g.fan[ok]] = g.centres[ok], g.width[ok]
+        centre, width = fan_landings(groups, geometry.fans.n_fans)
         i, j = pairs[:, 0], pairs[:, 1]
         speed = np.sqrt(np.maximum(np.asarray(thrust, float), 0.0))
         amp = self.strength * (speed[i] - speed[j]) ** 2
