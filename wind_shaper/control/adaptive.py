@@ -133,7 +133,11 @@ class AdaptiveUpdate:
     commissioning_reach [PWM fraction]: later updates fit them too, each weighed by
     exp(-(d / reach)^2) with d the largest difference of its commands from the base's (0: the
     first update only); ``info['commissioning_maps']`` says how many went in and
-    ``info['commissioning_weight']`` their summed weight; commissioning_anchor: later updates
+    ``info['commissioning_weight']`` their summed weight; commissioning_landing: a later step
+    longer than the reach is solved again with d the nearer of the map's difference from the
+    base's commands and from where that step lands (``info['landing']``: those commands), so
+    the fit that sends a far step has the commissioning's maps near its end in it (off: the
+    base only); commissioning_anchor: later updates
     start their fit from what the commissioning's maps alone teach of each fan (the per-fan
     correction fitted to them, as the prior's mean; its sd as before), so a fan the run has not
     yet run, on which its maps say nothing, keeps what the commissioning showed instead of
@@ -217,6 +221,7 @@ class AdaptiveUpdate:
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
     off_margin: float = 0.0
+    commissioning_landing: bool = False
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -262,11 +267,13 @@ class AdaptiveUpdate:
         cache[key] = (inp.model, basis)
         return basis
 
-    def _commissioning_weights(self, inp: UpdateInput, history, fit_from: int, relearn, U_b) -> list:
+    def _commissioning_weights(self, inp: UpdateInput, history, fit_from: int, relearn, U_b,
+                               landing=None) -> list:
         """The weight, against one of the run's maps, of each commissioning map in this update's
         fit: ``commissioning_weight`` each in the first update; in later ones that times
         exp(-(d / commissioning_reach)^2), d [PWM fraction] the largest difference of the map's
-        commands from the base's (0 when ``commissioning_reach`` is 0). None at all without a
+        commands from the base's, or from ``landing``'s [PWM fraction] where that is nearer
+        (``commissioning_landing``), (0 when ``commissioning_reach`` is 0). None at all without a
         target, after the first sweep contradicted the prior, or once the run has relearned (the
         tunnel is no longer the one commissioned)."""
         maps = inp.prior_maps
@@ -277,6 +284,8 @@ class AdaptiveUpdate:
         if self.commissioning_reach <= 0 or not self._still_commissioned(history, fit_from, relearn):
             return [0.0] * len(maps)
         far = [float(np.max(np.abs(np.asarray(p.U, float) - U_b))) for p in maps]
+        if landing is not None:
+            far = [min(d, float(np.max(np.abs(np.asarray(p.U, float) - landing)))) for d, p in zip(far, maps)]
         return [self.commissioning_weight * float(np.exp(-(d / self.commissioning_reach) ** 2)) for d in far]
 
     @staticmethod
@@ -306,9 +315,10 @@ class AdaptiveUpdate:
     def step(self, inp: UpdateInput) -> UpdateStep:
         return self._step(inp, relearn=None)
 
-    def _step(self, inp: UpdateInput, relearn: Contradiction | None) -> UpdateStep:
+    def _step(self, inp: UpdateInput, relearn: Contradiction | None, landing=None) -> UpdateStep:
         """One step; ``relearn``: the newest map contradicted the earlier ones, so this step
-        uses the newest map alone (``chain``)."""
+        uses the newest map alone (``chain``); ``landing`` [PWM fraction]: where a first solve
+        sent a step longer than ``commissioning_reach`` (``commissioning_landing``)."""
         on = np.asarray(inp.enabled, dtype=bool)
         U_k = self.bounds.project(inp.U, on)
         delta = np.asarray(inp.delta, dtype=float)
@@ -364,7 +374,7 @@ class AdaptiveUpdate:
         # where that map cannot tell; maps across the command range can. Later updates fit
         # only those near the base (``commissioning_reach``): far maps weigh heavily on a fit's
         # slopes and would hold the steps near the optimum to the prior's form.
-        kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b))
+        kept = [(p, w) for p, w in zip(inp.prior_maps, self._commissioning_weights(inp, history, fit_from, relearn, U_b, landing))
                 if w > 1e-3 * self.commissioning_weight and all(p is not q for q in level)]   # fainter ones: no change, cost time
         broad = [(np.asarray(p.U, float), np.asarray(p.mean, float), self._fit_weight(p, w)) for p, w in kept]
         # -- the prior model M(U) and its Jacobian, corrected by the maps ----------------------
@@ -470,7 +480,7 @@ class AdaptiveUpdate:
         if relearn is None and self.relearn:
             verdict = contradiction(maps, max(fit_from, n_level), model, 0.5 * self.noise_std)
             if verdict is not None and verdict.contradicts:
-                return self._step(inp, relearn=verdict)
+                return self._step(inp, relearn=verdict, landing=landing)
 
         # -- trust radius from the last step's prediction ---------------------------------------
         radius, rho, accepted = self.radius, None, True
@@ -618,6 +628,13 @@ class AdaptiveUpdate:
             return U_next, pred_c, ridge
 
         U_next, pred_c, ridge = solve(lo, hi)
+        if (self.commissioning_landing and landing is None and mode == 'shape' and history
+                and self.commissioning_reach > 0 and self._still_commissioned(history, fit_from, relearn)
+                and float(np.max(np.abs(U_next - U_b))) > self.commissioning_reach):
+            # A step beyond the reach lands where the fit had only faded maps: solve again with
+            # the commissioning's maps near that landing weighed in too (by the nearer of the
+            # base and the landing), so the model that sends the step has seen where it goes.
+            return self._step(inp, relearn=relearn, landing=U_next)
         held_on = 0   # fans the step would have switched off, taken half way down instead
         if self.off_margin > 0 and self.idle_below > self.bounds.u_min:
             # A fan switched off from a running command is a change the prior extrapolates to
@@ -659,6 +676,8 @@ class AdaptiveUpdate:
                 'held_on': held_on}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
+        if landing is not None:
+            info['landing'] = [float(u) for u in landing]
         # step_size, like the paper's lambda_k, is dimensionless: the fraction of a full step within
         # the first trust region (without a history it is step_fraction / (k + 1), the paper's
         # schedule); the radius itself [PWM fraction] is info['radius']
