@@ -522,7 +522,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
         tunnel = _TimedTunnel(sim)
     loop = make_loop(plant, target_values, cfg, tunnel, short=cfg['short'] and source == 'plate')
     out = {'mse': [], 'pwm': [], 'measured_mse': [], 'plate_s': [], 'settle_s': [], 'cpu_s': [], 'stop': [],
-           'mismatch': None, 'restart': None, 'relearned': 0, 'z': []}
+           'mismatch': None, 'restart': None, 'relearned': 0, 'landed': 0, 'z': []}
     for i in range(iterations + 1):
         c0, s0 = time.thread_time(), tunnel.cpu
         rec = loop.iterate(update=i < iterations)
@@ -533,6 +533,7 @@ def run_method(plant: Plant, target_values, cfg: dict, seed: int, iterations: in
         out['measured_mse'].append(float(np.mean((rec.estimate.mean - target_values) ** 2)))
         out['z'].extend(((rec.estimate.mean - true) / np.maximum(rec.estimate.std, 1e-12)).tolist())
         out['relearned'] += bool(rec.info.get('relearned'))
+        out['landed'] += bool(rec.info.get('landing'))   # a far step solved again (commissioning_landing)
         out['plate_s'].append(rec.plate_s)
         out['settle_s'].append(rec.settle_s)
         out['stop'].append(bool(rec.info.get('stop', False)))
@@ -593,6 +594,7 @@ def summarise(runs: list[dict], zs: float) -> dict:
         'prediction_mismatch': [r['mismatch'] for r in runs],
         'restarts': sum(bool(r['restart']) for r in runs),
         'relearned': sum(r['relearned'] for r in runs),
+        'landed': sum(r['landed'] for r in runs),
         'z_rms': float(np.sqrt(np.mean(np.square(np.concatenate([r['z'] for r in runs]))))),
         'z_outside_2sigma': float(np.mean(np.abs(np.concatenate([r['z'] for r in runs])) > 2.0)),
         'ratio_per_seed': R.round(4).tolist(),
