@@ -227,6 +227,18 @@ def _commissioned(effect_specs, design_spec: str = 'lhs:6+level', without: tuple
                                                    setup.geometry.key_points)
 
 
+def _run(commissioned, target, seed: int, overrides: dict, iterations: int):
+    """A shaping run on a tunnel from ``_commissioned`` with ``overrides`` of the update rule:
+    (its records, the true error [N^2] at the commands its last update sends)."""
+    setup, effects, cal, maps = commissioned
+    loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
+                                     setup.shaping, model_error=cal.heldout_rmse, prior_maps=maps,
+                                     rule_overrides=overrides)
+    records = [loop.iterate() for _ in range(iterations)]
+    truth = setup.make_sim(seed=seed, effects=effects).true_field(records[-1].next_pwm, setup.geometry.key_points)
+    return records, float(np.mean((truth - target) ** 2))
+
+
 @pytest.fixture(scope='module')
 def coflow():
     """The co-flow tunnel's prior commissioned from designed sweeps, and their field maps."""
@@ -431,14 +443,10 @@ def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
     target = setup.make_target('parabolic').values(kp)
     after = {}
     for seed in (2, 3):
-        truth = setup.make_sim(seed=seed, effects=effects)
         for level in (False, True):
-            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                             rule_overrides={'level_map': level})
-            records = [loop.iterate() for _ in range(4)]
+            records, error = _run((setup, effects, cal, maps), target, seed, {'level_map': level}, 4)
             assert records[-1].info['level_map'] == level
-            after[seed, level] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+            after[seed, level] = error
     # measured [N^2] (seeds 2, 3): 0.4663 / 0.4623 without, 0.4538 / 0.4503 with
     assert all(after[s, True] < after[s, False] for s in (2, 3)), after
     assert after[2, True] + after[3, True] < 0.985 * (after[2, False] + after[3, False]), after
@@ -464,14 +472,9 @@ def test_the_spread_and_the_tilt_keep_the_second_step_on_a_screened_warm_tunnel(
     target = setup.make_target('uniform').values(kp)
     after = {}
     for seed in (2, 3):
-        truth = setup.make_sim(seed=seed, effects=effects)
         for terms in (True, False):
             overrides = {} if terms else {'spread_sd': 0.0, 'tilt_sd': 0.0}
-            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                             rule_overrides=overrides)
-            records = [loop.iterate() for _ in range(2)]
-            after[seed, terms] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+            after[seed, terms] = _run((setup, effects, cal, maps), target, seed, overrides, 2)[1]
     assert all(after[s, True] < after[s, False] for s in (2, 3)), after
     assert after[2, True] + after[3, True] < 0.975 * (after[2, False] + after[3, False]), after
 
@@ -504,13 +507,9 @@ def test_the_low_level_sweep_brings_the_third_sweep_nearer_the_optimum():
         for name in ('uniform', 'gaussian@LM1'):
             target = setup.make_target(name).values(kp)
             for seed in (2, 3):
-                loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                                 shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                                 rule_overrides={'off_margin': 0.0})
-                records = [loop.iterate() for _ in range(2)]
+                records, error = _run((setup, effects, cal, maps), target, seed, {'off_margin': 0.0}, 2)
                 assert records[-1].info['level_maps'] == (2 if low else 1)
-                truth = setup.make_sim(seed=seed, effects=effects)
-                third[name, seed, low] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+                third[name, seed, low] = error
     for name in ('uniform', 'gaussian@LM1'):
         assert all(third[name, s, True] < third[name, s, False] for s in (2, 3)), third
         assert third[name, 2, True] + third[name, 3, True] < 0.9 * (third[name, 2, False] + third[name, 3, False]), third
@@ -538,15 +537,11 @@ def test_the_second_step_does_not_cross_the_stall_dip_it_has_fitted():
     after, ridges = {}, {}
     own_curves = {'shared_curve_sd': 0.0}
     for seed in (0, 3):
-        truth = setup.make_sim(seed=seed, effects=effects)
         for case, overrides in (('guard', own_curves), ('no guard', {**own_curves, 'ridge_share': 0.0}),
                                 ('shipped', {})):
-            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                             rule_overrides=overrides)
-            records = [loop.iterate() for _ in range(2)]
+            records, error = _run((setup, effects, cal, maps), target, seed, overrides, 2)
             ridges[seed, case] = records[-1].info['ridge']
-            after[seed, case] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+            after[seed, case] = error
         assert ridges[seed, 'guard'] is not None and ridges[seed, 'no guard'] is None, ridges
         assert after[seed, 'guard'] < 0.8 * after[seed, 'no guard'], after
         assert after[seed, 'shipped'] < 0.8 * after[seed, 'no guard'], after
@@ -571,14 +566,10 @@ def test_a_step_switches_a_running_fan_off_only_for_a_gain_a_sweep_can_tell():
     target = setup.make_target('uniform').values(kp)
     third, held = {}, {}
     for seed in (1, 3):
-        truth = setup.make_sim(seed=seed, effects=effects)
         for margin in (1.0, 0.0):
-            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                             rule_overrides={} if margin else {'off_margin': 0.0})
-            records = [loop.iterate() for _ in range(3)]
+            records, error = _run((setup, effects, cal, maps), target, seed, {} if margin else {'off_margin': 0.0}, 3)
             held[seed, margin] = sum(r.info.get('held_on', 0) for r in records)
-            third[seed, margin] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+            third[seed, margin] = error
     on, bounds = setup.geometry.fans.enabled, shaping.bounds
     start = np.where(np.arange(len(on)) == len(on) - 1, 0.45, 0.15)
     for seed in (1, 3):
@@ -627,13 +618,9 @@ def test_a_far_second_step_fitted_on_the_maps_near_its_end_lands_nearer_the_opti
     target = setup.make_target('parabolic').values(kp)
     after, landed = {}, {}
     for seed in (0, 1):
-        truth = setup.make_sim(seed=seed, effects=effects)
         for on in (False, True):
-            loop = ShapingLoop.from_settings(setup.make_sim(seed=seed, effects=effects), cal.model, target,
-                                             shaping, model_error=cal.heldout_rmse, prior_maps=maps,
-                                             rule_overrides={'commissioning_landing': on})
-            records = [loop.iterate() for _ in range(2)]
+            records, error = _run((setup, effects, cal, maps), target, seed, {'commissioning_landing': on}, 2)
             landed[seed, on] = 'landing' in records[-1].info
-            after[seed, on] = float(np.mean((truth.true_field(records[-1].next_pwm, kp) - target) ** 2))
+            after[seed, on] = error
         assert landed[seed, True] and not landed[seed, False], landed
     assert all(after[s, True] < 0.95 * after[s, False] for s in (0, 1)), after
