@@ -439,7 +439,7 @@ def test_the_level_sweep_frees_a_run_that_settles_above_the_optimum():
     corrected model sees no step worth taking, 2-3 % above where the level map, kept among the
     run's maps, lets the steps go."""
     setup, effects, cal, maps = _commissioned(SAG)
-    shaping, kp = setup.shaping, setup.geometry.key_points
+    kp = setup.geometry.key_points
     target = setup.make_target('parabolic').values(kp)
     after = {}
     for seed in (2, 3):
