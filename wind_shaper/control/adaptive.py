@@ -272,8 +272,8 @@ class AdaptiveUpdate:
         """The weight, against one of the run's maps, of each commissioning map in this update's
         fit: ``commissioning_weight`` each in the first update; in later ones that times
         exp(-(d / commissioning_reach)^2), d [PWM fraction] the largest difference of the map's
-        commands from the base's, or from ``landing``'s [PWM fraction] where that is nearer
-        (``commissioning_landing``), (0 when ``commissioning_reach`` is 0). None at all without a
+        commands from the base's, or from ``landing`` [PWM fraction] where that is nearer
+        (``commissioning_landing``); 0 when ``commissioning_reach`` is 0. None at all without a
         target, after the first sweep contradicted the prior, or once the run has relearned (the
         tunnel is no longer the one commissioned)."""
         maps = inp.prior_maps
