@@ -136,7 +136,7 @@ class AdaptiveUpdate:
     ``info['commissioning_weight']`` their summed weight; commissioning_landing: a later step
     longer than the reach is solved again with d the nearer of the map's difference from the
     base's commands and from where that step lands (``info['landing']``: those commands), so
-    the fit that sends a far step has the commissioning's maps near its end in it (off: the
+    the fit that sends a far step has the commissioning's maps near its end in it (False: the
     base only); commissioning_anchor: later updates
     start their fit from what the commissioning's maps alone teach of each fan (the per-fan
     correction fitted to them, as the prior's mean; its sd as before), so a fan the run has not
@@ -221,7 +221,7 @@ class AdaptiveUpdate:
     spread_sd: float = 0.0
     tilt_sd: float = 0.0
     off_margin: float = 0.0
-    commissioning_landing: bool = False
+    commissioning_landing: bool = True
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
