@@ -726,7 +726,7 @@ def _path(objective, U_from, U_to, basis: FanBasis | None = None, points: int = 
     else:
         a0, a1 = basis.thrust(U_from)[0], basis.thrust(U_to)[0]
         lo, hi = np.minimum(U_from, U_to), np.maximum(U_from, U_to)
-        Us = [U_from.copy()] + [basis.invert(a0 + t * (a1 - a0), lo, hi) for t in ts[1:-1]] + [U_to.copy()]
+        Us = [U_from.copy(), *basis.invert(a0 + ts[1:-1, None] * (a1 - a0), lo, hi), U_to.copy()]
     return Us, np.array([objective(U) for U in Us])
 
 

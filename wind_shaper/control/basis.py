@@ -218,24 +218,54 @@ class FanBasis:
 
     def invert(self, t, lo, hi, iterations: int = 40) -> np.ndarray:
         """Commands U in [lo, hi] (n,) with a_j(U_j) = t_j [N] (bisection safeguarded Newton;
-        a_j is non-decreasing, see ``monotone``); t outside [a(lo), a(hi)] gives lo or hi."""
-        lo, hi = np.array(lo, dtype=float), np.array(hi, dtype=float)
-        a_lo, _ = self.thrust(lo)
-        a_hi, _ = self.thrust(hi)
+        a_j is non-decreasing, see ``monotone``); t outside [a(lo), a(hi)] gives lo or hi.
+        t may hold several rows (m, n): each is solved as it would be alone (its own stop), in
+        one batch of array operations."""
+        t = np.asarray(t, dtype=float)
+        if t.ndim == 1:
+            return self._invert_rows(t[None, :], lo, hi, iterations)[0]
+        return self._invert_rows(t, lo, hi, iterations)
+
+    def _thrust_rows(self, U):
+        """a_j and a_j' (each (m, n)) for the rows of U (m, n), each as ``_thrust`` gives it."""
+        if self._poly is not None:
+            return self._thrust(U)
+        inside = np.all((U >= 0.0) & (U <= 1.0), axis=1)
+        a, da = np.empty_like(U), np.empty_like(U)
+        if inside.any():
+            a[inside], da[inside] = self._interpolated(U[inside])
+        if not inside.all():
+            out = self._evaluated(U[~inside])
+            a[~inside], da[~inside] = (o.reshape(-1, U.shape[1]) for o in out)
+        return a, da
+
+    def _invert_rows(self, t, lo, hi, iterations):
+        m = t.shape[0]
+        lo = np.broadcast_to(np.asarray(lo, dtype=float), t.shape).copy()
+        hi = np.broadcast_to(np.asarray(hi, dtype=float), t.shape).copy()
+        a_lo, _ = self._thrust_rows(lo)
+        a_hi, _ = self._thrust_rows(hi)
         span = np.maximum(a_hi - a_lo, 1e-12)
         U = np.clip(lo + (hi - lo) * (t - a_lo) / span, lo, hi)
+        out = U.copy()
+        live = np.arange(m)     # rows still iterating
         for _ in range(iterations):
-            a, da = self.thrust(U)
-            f = a - t
-            lo = np.where(f < 0, U, lo)
-            hi = np.where(f > 0, U, hi)
-            newton = U - f / np.where(da > 1e-12, da, np.inf)
-            inside = (newton > lo) & (newton < hi) & np.isfinite(newton)
-            U_new = np.where(inside, newton, 0.5 * (lo + hi))
-            if np.max(np.abs(U_new - U)) < 1e-9:
-                return U_new
-            U = U_new
-        return U
+            Ul, tl = U[live], t[live]
+            a, da = self._thrust_rows(Ul)
+            f = a - tl
+            lo_l = np.where(f < 0, Ul, lo[live])
+            hi_l = np.where(f > 0, Ul, hi[live])
+            newton = Ul - f / np.where(da > 1e-12, da, np.inf)
+            inside = (newton > lo_l) & (newton < hi_l) & np.isfinite(newton)
+            U_new = np.where(inside, newton, 0.5 * (lo_l + hi_l))
+            done = np.max(np.abs(U_new - Ul), axis=1) < 1e-9
+            out[live[done]] = U_new[done]
+            lo[live], hi[live], U[live] = lo_l, hi_l, U_new
+            live = live[~done]
+            if not live.size:
+                return out
+        out[live] = U[live]     # rows that did not settle: their last iterate
+        return out
 
     @property
     def monotone(self) -> bool:

@@ -215,6 +215,22 @@ def test_fan_basis_reproduces_the_prior(rig, prior, rng, sparse):
     np.testing.assert_allclose(basis.invert(t, np.zeros(7), np.ones(7)), 0.37, atol=1e-7)
 
 
+def test_fan_basis_inverts_many_thrusts_at_once_as_it_inverts_each(rig, prior, rng):
+    # the ridge test inverts 19 thrust vectors per step in one batch; each row must come out
+    # as it does alone (its own stop), including thrusts beyond [a(lo), a(hi)], which clip
+    basis = FanBasis.from_term(prior, rig.key_points)
+    lo, hi = np.full(7, 0.1), np.full(7, 0.7)
+    a_lo, a_hi = basis.thrust(lo)[0], basis.thrust(hi)[0]
+    rows = a_lo + rng.uniform(-0.2, 1.2, (25, 7)) * (a_hi - a_lo)
+    batched = basis.invert(rows, lo, hi)
+    alone = np.array([basis.invert(t, lo, hi) for t in rows])
+    np.testing.assert_array_equal(batched, alone)
+    assert np.all((batched >= lo) & (batched <= hi))
+    inside = (rows > a_lo) & (rows < a_hi)
+    np.testing.assert_allclose(np.array([basis.thrust(u)[0] for u in batched])[inside], rows[inside], rtol=1e-7)
+    np.testing.assert_array_equal(batched[rows <= a_lo], np.broadcast_to(lo, rows.shape)[rows <= a_lo])
+
+
 def test_fan_basis_refuses_a_prior_whose_fans_do_not_superpose(rig):
     jets = FanJets(rig.fans, **JETS)
     with pytest.raises(ConfigError, match='superpose'):
