@@ -165,8 +165,10 @@ def _cholesky(K):
 
 def _inverse_from_cholesky(L) -> np.ndarray:
     """K^-1 (k, m, m) from the lower Cholesky factors L (k, m, m) of K, run by run (LAPACK
-    potri: a third of what an LU inverse of K costs, and no second factorisation); LinAlgError
-    where a factor's diagonal holds a zero."""
+    potri on the factor the likelihood has anyway, not a second, LU factorisation; faster for
+    the runs of up to 240 samples the shipped fit uses, slower for many runs of ~100: see
+    docs/benchmarks.md, "CPU per iteration"); LinAlgError where a factor's diagonal holds a
+    zero."""
     out = np.empty_like(L)
     for i, Li in enumerate(L):
         inv, info = lapack.dpotri(Li, lower=1)
