@@ -169,13 +169,8 @@ class FanBasis:
         return hit[0].copy(), hit[1].copy()
 
     def _thrust(self, U):
-        if self._poly is not None:
-            c, scale = self._poly
-            P = c[:, 0] + U * (c[:, 1] + U * c[:, 2])
-            return (P - c[:, 0]) * scale, (c[:, 1] + 2.0 * c[:, 2] * U) * scale
-        if np.all((U >= 0.0) & (U <= 1.0)):
-            return self._interpolated(U)
-        return self._evaluated(U[None, :])
+        a, da = self._thrust_rows(U[None, :])
+        return a[0], da[0]
 
     def _evaluated(self, Us):
         """a_j and a_j' (each (m, n)) for the rows of Us (m, n), from the term itself: each fan
@@ -227,9 +222,13 @@ class FanBasis:
         return self._invert_rows(t, lo, hi, iterations)
 
     def _thrust_rows(self, U):
-        """a_j and a_j' (each (m, n)) for the rows of U (m, n), each as ``_thrust`` gives it."""
+        """a_j and a_j' (each (m, n)) for the rows of U (m, n): the prior's polynomial curves
+        where it has them, else the tabulated curves for rows inside [0, 1] and the term itself
+        for the others."""
         if self._poly is not None:
-            return self._thrust(U)
+            c, scale = self._poly
+            P = c[:, 0] + U * (c[:, 1] + U * c[:, 2])
+            return (P - c[:, 0]) * scale, (c[:, 1] + 2.0 * c[:, 2] * U) * scale
         inside = np.all((U >= 0.0) & (U <= 1.0), axis=1)
         a, da = np.empty_like(U), np.empty_like(U)
         if inside.any():
