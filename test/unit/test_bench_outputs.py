@@ -518,3 +518,39 @@ def test_the_seventh_written_tunnels_load_and_their_effects_do_what_they_say():
     theta = lock.angle(lean, geo)
     np.testing.assert_allclose(turned, [[0.1 * np.cos(theta), -0.1 * np.sin(theta)]], atol=1e-12)
     assert lock.angle(np.zeros(n), geo) == 0.0
+
+
+def test_the_eighth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04: every file loads (3); two supply rails each sag with
+    their own fans' mean command, the plume widens with the fans' mean thrust, and a filter
+    clogged on one side costs the fans on that side by their own command."""
+    geo, pos = _written_tunnels_load('written_2026-12-04', 3)
+    from wind_shaper.sim import make_effect
+    n = len(pos)
+    ring = np.hypot(pos[:, 0], pos[:, 1]) > 0.05
+    rails = make_effect('split_rail_sag', sag=0.2)
+    rail = rails.rails(geo)
+    assert rail[~ring].tolist() == [0] and sorted(rail[ring].tolist()) == [0, 0, 0, 1, 1, 1]
+    angles = np.arctan2(pos[ring, 1], pos[ring, 0])
+    around = rail[ring][np.argsort(angles)]
+    assert np.all(around[1:] != around[:-1])                          # alternate round the ring
+    level = np.full(n, 0.5)
+    np.testing.assert_allclose(rails.command(level, geo), 0.5 * (1 - 0.2 * 0.5))
+    one = int(np.flatnonzero(ring & (rail == 1))[0])
+    harder = level.copy()
+    harder[one] = 0.65
+    out = rails.command(harder, geo)
+    same_rail = (rail == 1) & (np.arange(n) != one)
+    assert np.all(out[same_rail] < 0.5 * (1 - 0.2 * 0.5))             # its rail sags further
+    np.testing.assert_allclose(out[rail == 0], 0.5 * (1 - 0.2 * 0.5))  # the other rail does not
+    widen = make_effect('load_expansion', expansion=0.2, reference=4.0)
+    points = np.array([[0.1, 0.0], [0.0, -0.2]])
+    np.testing.assert_allclose(widen.warp(points, np.zeros(n), geo), points)
+    np.testing.assert_allclose(widen.warp(points, np.full(n, 4.0), geo), points / 1.2)
+    clog = make_effect('clogged_inlet', clog=0.4, direction=0.0)
+    w = clog.exposure(geo)
+    assert w[~ring].tolist() == [0.5] and np.isclose(w[ring].max(), 1.0, atol=0.15)
+    facing = int(np.argmax(np.where(ring, w, -1)))
+    np.testing.assert_allclose(clog.command(level, geo), 0.5 * (1 - 0.4 * w * 0.5))
+    low = clog.command(np.full(n, 0.2), geo)
+    assert 1 - low[facing] / 0.2 < 1 - clog.command(level, geo)[facing] / 0.5   # harder costs more

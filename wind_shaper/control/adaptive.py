@@ -78,6 +78,10 @@ def _commissioning_fit(fit: ShapeFit, basis: FanBasis, maps, on) -> np.ndarray:
     return hit[1].copy()
 
 
+#: ``first_step_from_level``: a fan is low at the warm start below this share of the low level
+#: sweep's command (3/4: 0.15 PWM on the default range, where the low level runs 0.195).
+LOW_SHARE = 0.75
+
 #: Settings checked against a range: name -> (low, high, what the number is).
 _RANGES = {
     'gain_common_sd': (0, 1, 'a share of the gain'),
@@ -180,7 +184,13 @@ class AdaptiveUpdate:
     rule's) over that step: the run's maps seldom show a fan off, and the prior's curve is least
     known near the bottom of the range (a dead band, an idle disc's backflow, an ESC's crosstalk
     left out of the fit), while a fan that should be off is off two or three steps later.
-    ``info['held_on']`` says how many fans a step took half way down; 0: off.
+    ``info['held_on']`` says how many fans a step took half way down; 0: off;
+    first_step_from_level [fans]: when the warm start leaves at least this many enabled fans
+    below ``LOW_SHARE`` of the low level sweep's command, the first update steps from the level
+    map the commissioning measured best instead of from the first sweep (which stays among the
+    maps it fits): the prior's optimum is then least known where it keeps those fans, and a step
+    from every fan running interpolates between maps that show them. Later updates step from
+    the run's best map as always; ``info['from_level']`` says whether it did; 0: off.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -222,6 +232,7 @@ class AdaptiveUpdate:
     tilt_sd: float = 0.0
     off_margin: float = 0.0
     commissioning_landing: bool = True
+    first_step_from_level: int = 0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -239,6 +250,10 @@ class AdaptiveUpdate:
                 and self.fit_from >= 1):
             raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
                               'fit_from >= 1')
+        if not (isinstance(self.first_step_from_level, (int, np.integer)) and not isinstance(self.first_step_from_level, bool)
+                and self.first_step_from_level >= 0):
+            raise ConfigError(f'first_step_from_level must be a whole number of fans >= 0 (0: off), got '
+                              f'{self.first_step_from_level!r}')
         for name, (low, high, what) in _RANGES.items():
             value = getattr(self, name)
             if not low <= value <= high:
@@ -333,7 +348,7 @@ class AdaptiveUpdate:
             return (np.asarray(p.U, float), np.asarray(p.mean, float) - ref,
                     None if p.std is None else np.asarray(p.std, float), info)
         # The commissioning's level maps (every enabled fan at one command) join the run's maps,
-        # first (``level_map``); never a base to step from.
+        # first (``level_map``); a base to step from only for the first update (``first_step_from_level``).
         use_level = self.level_map and target is not None and self.commissioning_weight > 0
         level = [p for p in inp.prior_maps if is_level(p.U, on)] if use_level else []
         n_level = len(level)
@@ -360,6 +375,15 @@ class AdaptiveUpdate:
         b = int(len(maps) - 1 - np.argmin(errors[base_from:][::-1]))
         if errors[-1] <= errors[b] + 0.5 * err_noise:
             b = len(maps) - 1
+        from_level = False
+        if self.first_step_from_level and not history and n_level and relearn is None:
+            # The prior's optimum leaves fans low, where their curves are least known (a dead
+            # band, a stall, a starved inlet) and the commissioning's designed maps seldom
+            # went: a first step from there extrapolates. From the level map the sweeps
+            # measured best, every fan running, it interpolates between maps that show them.
+            low_level = min(float(np.max(maps[i][0])) for i in range(n_level))
+            if int(np.sum(on & (U_k < LOW_SHARE * low_level))) >= self.first_step_from_level:
+                b, from_level = int(np.argmin(errors[:n_level])), True
         U_b, r_b = maps[b][0], maps[b][1]
         if self.locality:
             near = [np.exp(-(np.max(np.abs(U - U_b)) / self.locality) ** 2) for U, _, _, _ in maps]
@@ -673,7 +697,7 @@ class AdaptiveUpdate:
                 'commissioning_maps': len(broad) if mode == 'shape' else 0,
                 'commissioning_weight': round(float(sum(w for _, w in kept)), 4) if mode == 'shape' else 0.0,
                 'stop_reason': reason, 'ridge': ridge,
-                'held_on': held_on}
+                'held_on': held_on, 'from_level': from_level}
         if relearn is not None:
             info['relearned'] = relearn.to_json()
         if landing is not None:
