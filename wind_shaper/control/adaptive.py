@@ -376,7 +376,7 @@ class AdaptiveUpdate:
         if errors[-1] <= errors[b] + 0.5 * err_noise:
             b = len(maps) - 1
         from_level = False
-        if self.first_step_from_level and not history and n_level and relearn is None:
+        if self.first_step_from_level and inp.k == 0 and not history and n_level and relearn is None:
             # The prior's optimum leaves fans low, where their curves are least known (a dead
             # band, a stall, a starved inlet) and the commissioning's designed maps seldom
             # went: a first step from there extrapolates. From the level map the sweeps

@@ -677,3 +677,30 @@ def test_a_first_step_from_level_setting_that_is_not_a_count_of_fans_is_refused(
     from wind_shaper.core.errors import ConfigError
     with pytest.raises(ConfigError, match='first_step_from_level'):
         AdaptiveUpdate(first_step_from_level=fans)
+
+
+def test_the_first_step_from_the_level_map_is_the_first_updates_only():
+    """A caller that keeps no history (k > 0, no past iterations) never steps from the level
+    map; the first update (k = 0) does, from the level map that measured best."""
+    from wind_shaper.control.update import PastIteration, UpdateInput
+    setup = Setup.load()
+    sim = setup.make_sim(seed=0)
+    kp, on, model = setup.geometry.key_points, setup.geometry.fans.enabled, setup.load_model()
+    target = setup.make_target('gaussian@LM1').values(kp)
+    std = np.full(len(kp), 0.03)
+
+    def measure(U):
+        return PastIteration(np.asarray(U, float), sim.true_field(U, kp), std)
+    levels = (measure(np.full(7, 0.325)), measure(np.full(7, 0.195)))
+    start = np.r_[np.full(6, 0.05), 0.45]                  # every ring fan low
+    now = measure(start)
+    rule = setup.shaping.make_rule()
+    for k, fired in ((0, True), (2, False)):
+        inp = UpdateInput(k, now.U, target - now.mean, None, on, std=std, model=model, key_points=kp,
+                          target=target, prior_maps=levels)
+        step = rule.step(inp)
+        assert step.info['from_level'] == fired
+    best = int(np.argmin([np.mean((m.mean - target) ** 2) for m in levels]))
+    first = rule.step(UpdateInput(0, now.U, target - now.mean, None, on, std=std, model=model,
+                                  key_points=kp, target=target, prior_maps=levels))
+    assert first.info['base_k'] == best
