@@ -11,10 +11,11 @@ from wind_shaper.sim import register_effects
 from wind_shaper.sim.effects import HiddenEffect
 
 
-def _ring_angles(geometry) -> np.ndarray:
-    """(n_fans,) each hub's angle about the tunnel's axis [rad] (0 for a fan on the axis)."""
+def _ring(geometry) -> tuple[np.ndarray, np.ndarray]:
+    """((n_fans,) bool: the hub is off the tunnel's axis, (n_fans,) its angle about the axis
+    [rad])."""
     pos = np.asarray(geometry.fans.positions, float)
-    return np.arctan2(pos[:, 1], pos[:, 0])
+    return np.hypot(pos[:, 0], pos[:, 1]) > 0.05, np.arctan2(pos[:, 1], pos[:, 0])
 
 
 @dataclass(frozen=True)
@@ -36,10 +37,9 @@ class SplitRailSag(HiddenEffect):
 
     def rails(self, geometry) -> np.ndarray:
         """(n_fans,) 0 or 1: each fan's rail (by hub order round the ring; the axis fan on 0)."""
-        pos = np.asarray(geometry.fans.positions, float)
-        ring = np.hypot(pos[:, 0], pos[:, 1]) > 0.05
-        order = np.argsort(np.where(ring, _ring_angles(geometry), -10.0))
-        rail = np.zeros(len(pos), int)
+        ring, angle = _ring(geometry)
+        order = np.argsort(np.where(ring, angle, -10.0))
+        rail = np.zeros(len(ring), int)
         ring_order = [j for j in order if ring[j]]
         for k, j in enumerate(ring_order):
             rail[j] = k % 2
@@ -99,9 +99,8 @@ class CloggedInlet(HiddenEffect):
     bounds: ClassVar = {'clog': (0.0, 1.0), 'direction': (-360.0, 360.0)}
 
     def exposure(self, geometry) -> np.ndarray:
-        pos = np.asarray(geometry.fans.positions, float)
-        ring = np.hypot(pos[:, 0], pos[:, 1]) > 0.05
-        w = np.maximum(0.0, np.cos(_ring_angles(geometry) - np.radians(self.direction)))
+        ring, angle = _ring(geometry)
+        w = np.maximum(0.0, np.cos(angle - np.radians(self.direction)))
         return np.where(ring, w, 0.5)
 
     def command(self, u, geometry):
