@@ -554,3 +554,48 @@ def test_the_eighth_written_tunnels_load_and_their_effects_do_what_they_say():
     np.testing.assert_allclose(clog.command(level, geo), 0.5 * (1 - 0.4 * w * 0.5))
     low = clog.command(np.full(n, 0.2), geo)
     assert 1 - low[facing] / 0.2 < 1 - clog.command(level, geo)[facing] / 0.5   # harder costs more
+
+
+def test_the_ninth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04b: every file loads (3); a ring jet lands farther out the
+    harder its own fan runs (the central jet stays), the central jet widens, carrying the same
+    force, only when it outruns the ring, and a gantry strut's wake lowers the flow on its line
+    alone, whatever the fans do."""
+    geo, pos = _written_tunnels_load('written_2026-12-04b', 3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
+
+    def jets():
+        return [JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))]
+
+    outflow = make_effect('own_thrust_outflow', drift=0.04, thrust_ref=3.0)
+    thrust = np.full(n, 1.0)
+    thrust[0] = 6.0
+    moved = outflow.sources(jets(), thrust, geo)[0].centres
+    radius = np.hypot(moved[:, 0], moved[:, 1])
+    ring = np.arange(n) != centre
+    np.testing.assert_allclose(radius[ring] - np.hypot(pos[ring, 0], pos[ring, 1]),
+                               0.04 * thrust[ring] / (thrust[ring] + 3.0))
+    assert radius[0] - 0.25 > radius[1] - 0.25 > 0                      # its own speed, not the others'
+    np.testing.assert_allclose(moved[centre], pos[centre])
+    np.testing.assert_allclose(np.arctan2(moved[ring, 1], moved[ring, 0]), np.arctan2(pos[ring, 1], pos[ring, 0]))
+
+    flap = make_effect('centre_jet_flapping', flap=0.5, cap=3.0)
+    level = flap.sources(jets(), np.full(n, 2.0), geo)[0]
+    np.testing.assert_allclose(level.width, 0.1)                       # run level: steady
+    strong = np.full(n, 2.0)
+    strong[centre] = 4.0                                              # twice the ring's mean: x = 1
+    g = flap.sources(jets(), strong, geo)[0]
+    assert np.isclose(g.width[centre], 0.15) and np.allclose(np.delete(g.width, centre), 0.1)
+    np.testing.assert_allclose(g.amplitude[centre] * g.width[centre] ** 2, 0.1 ** 2)   # the same force
+    alone = np.zeros(n)
+    alone[centre] = 4.0
+    assert np.isclose(flap.sources(jets(), alone, geo)[0].width[centre], 0.1 * (1 + 0.5 * 3.0))   # capped
+
+    strut = make_effect('gantry_strut_wake', depth=0.3, width=0.04, distance=0.1, angle=0.0)
+    on_line = np.array([[0.1, -0.2], [0.1, 0.0], [0.1, 0.3]])
+    np.testing.assert_allclose(strut.scale(on_line, geo), 0.7)
+    np.testing.assert_allclose(strut.scale(np.array([[0.3, 0.0], [-0.2, 0.1]]), geo), 1.0, atol=1e-6)
+    assert 0.7 < strut.scale(np.array([[0.13, 0.0]]), geo)[0] < 1.0
