@@ -190,7 +190,12 @@ class AdaptiveUpdate:
     map the commissioning measured best instead of from the first sweep (which stays among the
     maps it fits): the prior's optimum is then least known where it keeps those fans, and a step
     from every fan running interpolates between maps that show them. Later updates step from
-    the run's best map as always; ``info['from_level']`` says whether it did; 0: off.
+    the run's best map as always; ``info['from_level']`` says whether it did; 0: off;
+    first_step_from_top [fans]: the same first step from the best level map when the warm start
+    holds at least this many enabled fans at ``bounds.u_max``: the prior wants more of them
+    than they give, so it underrates them, and at the top of the range it extrapolates their
+    curves as it does at the bottom (a central jet that flaps when it outruns the ring loses
+    force at the centre as its fan speeds up); 0: off.
     """
 
     bounds: CommandBounds = CommandBounds()
@@ -233,6 +238,7 @@ class AdaptiveUpdate:
     off_margin: float = 0.0
     commissioning_landing: bool = True
     first_step_from_level: int = 0
+    first_step_from_top: int = 0
 
     #: the loop may skip the (dense) prior Jacobian: this rule reads the model itself.
     needs_jacobian = False
@@ -250,10 +256,10 @@ class AdaptiveUpdate:
                 and self.fit_from >= 1):
             raise ConfigError('noise_std and secant_scale must be > 0, inner_iterations and '
                               'fit_from >= 1')
-        if not (isinstance(self.first_step_from_level, (int, np.integer)) and not isinstance(self.first_step_from_level, bool)
-                and self.first_step_from_level >= 0):
-            raise ConfigError(f'first_step_from_level must be a whole number of fans >= 0 (0: off), got '
-                              f'{self.first_step_from_level!r}')
+        for name in ('first_step_from_level', 'first_step_from_top'):
+            fans = getattr(self, name)
+            if not (isinstance(fans, (int, np.integer)) and not isinstance(fans, bool) and fans >= 0):
+                raise ConfigError(f'{name} must be a whole number of fans >= 0 (0: off), got {fans!r}')
         for name, (low, high, what) in _RANGES.items():
             value = getattr(self, name)
             if not low <= value <= high:
@@ -376,13 +382,19 @@ class AdaptiveUpdate:
         if errors[-1] <= errors[b] + 0.5 * err_noise:
             b = len(maps) - 1
         from_level = False
-        if self.first_step_from_level and inp.k == 0 and not history and n_level and relearn is None:
-            # The prior's optimum leaves fans low, where their curves are least known (a dead
-            # band, a stall, a starved inlet) and the commissioning's designed maps seldom
-            # went: a first step from there extrapolates. From the level map the sweeps
-            # measured best, every fan running, it interpolates between maps that show them.
+        if ((self.first_step_from_level or self.first_step_from_top) and inp.k == 0 and not history
+                and n_level and relearn is None):
+            # The prior's optimum leaves fans low, or holds one at the top of its range, where
+            # their curves are least known (a dead band, a stall, a starved inlet; a fan the
+            # prior underrates, whose jet may even lose strength there) and the commissioning's
+            # designed maps seldom went: a first step from there extrapolates. From the level
+            # map the sweeps measured best, every fan running, it interpolates between maps
+            # that show them.
             low_level = min(float(np.max(maps[i][0])) for i in range(n_level))
-            if int(np.sum(on & (U_k < LOW_SHARE * low_level))) >= self.first_step_from_level:
+            low = int(np.sum(on & (U_k < LOW_SHARE * low_level)))
+            top = int(np.sum(on & (U_k >= self.bounds.u_max - 1e-9)))
+            if ((self.first_step_from_level and low >= self.first_step_from_level)
+                    or (self.first_step_from_top and top >= self.first_step_from_top)):
                 b, from_level = int(np.argmin(errors[:n_level])), True
         U_b, r_b = maps[b][0], maps[b][1]
         if self.locality:
