@@ -714,16 +714,31 @@ OUTFLOW_FLAPPING_WEAK = [{'name': 'own_thrust_outflow', 'drift': 0.04}, {'name':
                          {'name': 'weak_fan', 'fan': 'HM1', 'gain': 0.8}]
 
 
-def test_a_first_step_from_the_level_map_where_the_warm_start_holds_a_fan_at_the_top():
+@pytest.fixture
+def flapping_effects(monkeypatch):
+    """The bench plugin's effects registered for this test alone: imported under a private name
+    with its registration held back, then added to the registry so that the test's end takes
+    them out again (a plugin left registered would change what the simulator's own tests see)."""
+    import importlib.util
+
+    import wind_shaper.sim as sim_pkg
+    from wind_shaper.sim.effects import HIDDEN_EFFECTS
+    path = Path(__file__).resolve().parents[3] / 'bench' / 'tunnels' / 'written_2026-12-04b' / 'lab_effects_i.py'
+    monkeypatch.setattr(sim_pkg, 'register_effects', lambda *classes: None)
+    spec = importlib.util.spec_from_file_location('_flapping_effects_for_a_test', path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for cls in (module.OwnThrustOutflow, module.CentreJetFlapping, module.GantryStrutWake):
+        monkeypatch.setitem(HIDDEN_EFFECTS, cls.name, cls)
+
+
+def test_a_first_step_from_the_level_map_where_the_warm_start_holds_a_fan_at_the_top(flapping_effects):
     """The uniform profile on that tunnel, its prior commissioned from `lhs:6+level`: the prior
     underrates the central fan and the warm start runs it at u_max, where more of it lowers the
     force at the centre. From the first sweep the steps learn that slowly; from the level map
     the first step brings the central fan down with the others running. After the second
     update the field is nearer the target on both seeds (measured [N^2], seeds 0, 1: 0.133 /
     0.130 from the level map, 0.242 / 0.241 from the first sweep)."""
-    from wind_shaper.model.plugins import load_plugin
-    load_plugin(str(Path(__file__).resolve().parents[3] / 'bench' / 'tunnels' / 'written_2026-12-04b'
-                    / 'lab_effects_i.py'))
     setup, effects, cal, maps = commissioned = _commissioned(OUTFLOW_FLAPPING_WEAK)
     rule = setup.shaping.make_rule()
     assert rule.first_step_from_top == 1 and rule.first_step_from_level == 2
