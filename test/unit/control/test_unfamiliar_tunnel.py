@@ -673,12 +673,13 @@ def test_the_first_step_stays_on_the_first_sweep_where_the_warm_start_runs_every
     assert not records[0].info['from_level']
 
 
+@pytest.mark.parametrize('name', ['first_step_from_level', 'first_step_from_top'])
 @pytest.mark.parametrize('fans', [-1, 1.5, True, '2'])
-def test_a_first_step_from_level_setting_that_is_not_a_count_of_fans_is_refused(fans):
+def test_a_first_step_from_level_setting_that_is_not_a_count_of_fans_is_refused(name, fans):
     from wind_shaper.control.adaptive import AdaptiveUpdate
     from wind_shaper.core.errors import ConfigError
-    with pytest.raises(ConfigError, match='first_step_from_level'):
-        AdaptiveUpdate(first_step_from_level=fans)
+    with pytest.raises(ConfigError, match=name):
+        AdaptiveUpdate(**{name: fans})
 
 
 def test_the_first_step_from_the_level_map_is_the_first_updates_only():
