@@ -599,3 +599,52 @@ def test_the_ninth_written_tunnels_load_and_their_effects_do_what_they_say():
     np.testing.assert_allclose(strut.scale(on_line, geo), 0.7)
     np.testing.assert_allclose(strut.scale(np.array([[0.3, 0.0], [-0.2, 0.1]]), geo), 1.0, atol=1e-6)
     assert 0.7 < strut.scale(np.array([[0.13, 0.0]]), geo)[0] < 1.0
+
+
+def test_the_tenth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04c: every file loads (3); each ESC maps the command
+    through its own endpoints (shifted, not only scaled), a fan slower than its neighbours loses
+    thrust by how much faster they run (run level, none loses), and a strong central jet
+    stretches the pattern outward near the axis only, by more the harder it runs."""
+    geo, pos = _written_tunnels_load('written_2026-12-04c', 3)
+    from wind_shaper.sim import make_effect
+    n = len(pos)
+    centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
+
+    ends = make_effect('esc_endpoint_spread', spread=0.1, seed=3)
+    lo, hi = ends.endpoints(n)
+    assert np.all((lo >= 0) & (lo <= 0.1) & (hi >= 0.95) & (hi <= 1.0)) and np.ptp(lo) > 0.02
+    u = np.full(n, 0.5)
+    np.testing.assert_allclose(ends.command(u, geo), (0.5 - lo) / (hi - lo))
+    assert np.all(ends.command(lo - 1e-3, geo) == 0) and np.all(ends.command(hi, geo) == 1)
+    ratio = ends.command(np.full(n, 0.2), geo) / ends.command(np.full(n, 0.6), geo)
+    assert np.ptp(ratio) > 0.02   # an offset: the fans' curves differ in shape, not by a gain alone
+
+    theft = make_effect('inflow_theft', theft=0.4, thrust_ref=4.0)
+    np.testing.assert_allclose(theft.thrust(np.full(n, 3.0), geo), 3.0)   # run level: nothing lost
+    strong_centre = np.full(n, 2.0)
+    strong_centre[centre] = 4.0
+    out = theft.thrust(strong_centre, geo)
+    assert out[centre] == 4.0                                            # the faster one keeps its own
+    ring = np.arange(n) != centre
+    # each ring fan has the centre and two ring fans beside it: it loses 0.4 x (2 / 3) / 4
+    np.testing.assert_allclose(out[ring], 2.0 * (1 - 0.4 * (2.0 / 3.0) / 4.0))
+    weak_centre = np.full(n, 2.0)
+    weak_centre[centre] = 1.0
+    out = theft.thrust(weak_centre, geo)
+    np.testing.assert_allclose(out[ring], 2.0)
+    np.testing.assert_allclose(out[centre], 1.0 * (1 - 0.4 * 1.0 / 4.0))   # robbed by all six
+
+    dome = make_effect('centre_jet_dome', push=0.3, extent=0.2, thrust_ref=3.0)
+    points = np.array([[0.05, 0.0], [0.0, -0.15], [0.6, 0.0]])
+    idle = np.full(n, 2.0)
+    idle[centre] = 0.0
+    np.testing.assert_allclose(dome.warp(points, idle, geo), points)     # central fan idle
+    soft, hard = np.full(n, 2.0), np.full(n, 2.0)
+    soft[centre], hard[centre] = 1.0, 6.0
+    moved_soft = np.hypot(*dome.warp(points, soft, geo).T)
+    moved_hard = np.hypot(*dome.warp(points, hard, geo).T)
+    r = np.hypot(*points.T)
+    assert np.all(moved_hard[:2] < moved_soft[:2]) and np.all(moved_soft[:2] < r[:2])   # read nearer the axis
+    np.testing.assert_allclose(moved_hard[0], 0.05 * (1 - 0.3 * (6 / 9) * np.exp(-(0.05 / 0.2) ** 2)))
+    assert abs(moved_hard[2] - 0.6) < 1e-3                                  # far out: as built
