@@ -648,3 +648,59 @@ def test_the_tenth_written_tunnels_load_and_their_effects_do_what_they_say():
     assert np.all(moved_hard[:2] < moved_soft[:2]) and np.all(moved_soft[:2] < r[:2])   # read nearer the axis
     np.testing.assert_allclose(moved_hard[0], 0.05 * (1 - 0.3 * (6 / 9) * np.exp(-(0.05 / 0.2) ** 2)))
     assert abs(moved_hard[2] - 0.6) < 1e-3                                  # far out: as built
+
+
+def test_the_eleventh_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04d: every file loads (3); two fans' command lines swapped
+    (the others untouched), each jet narrower and higher the faster its own fan runs (the same
+    force), and a fan's thrust raised by its counter-rotating neighbours' running, not by its
+    own or by neighbours that spin its way."""
+    geo, pos = _written_tunnels_load('written_2026-12-04d', 3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.effects import EffectError
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    names = list(geo.fans.names)
+    centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
+
+    swap = make_effect('swapped_channels', fan_a='HM1', fan_b='LM3')
+    u = np.linspace(0.1, 0.7, n)
+    out = swap.command(u, geo)
+    a, b = names.index('HM1'), names.index('LM3')
+    assert out[a] == u[b] and out[b] == u[a]
+    others = [j for j in range(n) if j not in (a, b)]
+    np.testing.assert_array_equal(out[others], u[others])
+    with pytest.raises(EffectError):
+        make_effect('swapped_channels', fan_a='HM1', fan_b='HM1').validate(geo)
+
+    def jets():
+        return [JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))]
+
+    narrow = make_effect('own_jet_narrowing', narrow=0.3, thrust_ref=3.0)
+    thrust = np.full(n, 1.0)
+    thrust[0] = 6.0
+    g = narrow.sources(jets(), thrust, geo)[0]
+    factor = 1 + 0.3 * thrust / (thrust + 3.0)
+    np.testing.assert_allclose(g.width, 0.1 / factor)
+    np.testing.assert_allclose(g.amplitude * g.width ** 2, 0.1 ** 2)   # the same force
+    assert g.width[0] < g.width[1]                                     # its own speed, not the others'
+    np.testing.assert_allclose(narrow.sources(jets(), np.zeros(n), geo)[0].width, 0.1)
+
+    recover = make_effect('swirl_recovery', recovery=0.2, thrust_ref=3.0)
+    spin = np.asarray(geo.fans.spin_sign)
+    alone = np.zeros(n)
+    alone[0] = 3.0
+    np.testing.assert_allclose(recover.thrust(alone, geo), alone)       # a fan alone gets none
+    ring = [j for j in range(n) if j != centre]
+    level = recover.thrust(np.full(n, 3.0), geo)
+    assert np.all(level >= 3.0) and np.all(level[ring] > 3.0)
+    # a ring fan's ring neighbours spin the other way; raising them raises it, not the reverse
+    j = ring[0]
+    near = [k for k in ring if k != j and np.hypot(*(pos[k] - pos[j])) < 0.26]
+    assert len(near) == 2 and np.all(spin[near] != spin[j])
+    more = np.full(n, 3.0)
+    more[near] = 6.0
+    assert recover.thrust(more, geo)[j] > level[j]
+    same = np.full(n, 3.0)
+    same[j] = 6.0
+    assert np.isclose(recover.thrust(same, geo)[j], 6.0 * level[j] / 3.0)   # its own speed adds nothing
