@@ -260,6 +260,8 @@ def _calibrated(setup: Setup, effects=()) -> tuple[object, float, tuple]:
                                      n_samples=shaping.samples_per_sweep,
                                      seed=int(design_seed[0]) if design_seed else 0)
         save_calibration(setup.model_path, cal)
+        if cal.wiring is not None and cal.wiring.swapped:   # a lab would stop here and rewire
+            print(f'commissioning: {cal.wiring.text}', file=sys.stderr, flush=True)
         if PRIOR_MAPS['use']:
             maps = commissioning_maps(cal.data, shaping.make_estimator(setup.load_model()),
                                       setup.geometry.key_points)

@@ -164,6 +164,9 @@ def _report_calibration(cal, out, setup) -> int:
     print(f'{kept} of the sweeps kept as field maps for every run\'s update, its first step and '
           f'later steps near them (the sweeps with fans running that cover the key points)')
     print(f'written to {out}; load it into the running coordinator with `wind-shaper set-model {out}`')
+    if cal.wiring is not None:
+        swapped = cal.wiring.checked and cal.wiring.swapped is not None
+        print(cal.wiring.text, file=sys.stderr if swapped else sys.stdout)
     return 0
 
 

@@ -24,6 +24,7 @@ from ..model.modelfile import MAPS_KEY, commissioning_maps_section, write_model_
 from .data import SweepSet
 from .errors import DataSourceError
 from .fitting import FitResult, fit_model
+from .wiring import WiringCheck, check_wiring
 
 __all__ = ['Calibration', 'calibrate_from_sweeps', 'calibrate_default_prior', 'commission_from_design',
            'commissioning_maps', 'keep_commissioning_maps', 'save_calibration', 'MIN_SWEEPS', 'SHIFT_GAIN']
@@ -45,7 +46,8 @@ class Calibration:
     fit on the others (cell means); train_rmse: that fit's RMSE on its own sweeps [N];
     held_out: the held-out sweeps' labels; source: where the sweeps came from; data: the sweeps
     (for their field maps, ``commissioning_maps``); compared: the priors ``calibrate_default_prior``
-    weighed, ((name, held-out RMSE [N]), ...), the kept one first."""
+    weighed, ((name, held-out RMSE [N]), ...), the kept one first; wiring: whether two fans'
+    commands look swapped in the sweeps (``workbench.wiring``)."""
 
     fit: FitResult
     heldout_rmse: float
@@ -55,6 +57,7 @@ class Calibration:
     source: str
     data: SweepSet | None = None
     compared: tuple = ()
+    wiring: WiringCheck | None = None
 
     @property
     def model(self) -> Term:
@@ -63,7 +66,8 @@ class Calibration:
     def summary(self) -> dict:
         return {'source': self.source, 'n_sweeps': self.n_sweeps, 'rmse_N': self.fit.rmse,
                 'heldout_rmse_N': self.heldout_rmse, 'train_rmse_N': self.train_rmse,
-                'held_out': list(self.held_out), 'parameters': self.fit.summary()['parameters']}
+                'held_out': list(self.held_out), 'parameters': self.fit.summary()['parameters'],
+                'wiring': None if self.wiring is None else self.wiring.to_json()}
 
 
 def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
@@ -85,7 +89,7 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
     r = graded.model(held.U, held.Z) - held.y
     final = fit_model(graded.model, data.fit_data(cell), max_nfev=max_nfev)
     return Calibration(final, float(np.sqrt(np.mean(r ** 2))), graded.rmse, tuple(test.labels),
-                       len(data), data.source, data)
+                       len(data), data.source, data, wiring=check_wiring(data, prior.fans, cell=cell))
 
 
 def calibrate_default_prior(data: SweepSet, fans, **fit_options) -> Calibration:
@@ -167,5 +171,6 @@ def save_calibration(path, cal: Calibration):
                       rmse_N=num(cal.fit.rmse), heldout_rmse_N=num(cal.heldout_rmse),
                       held_out_sweeps=list(cal.held_out), n_samples=int(cal.fit.n),
                       fitted_at=time.strftime('%Y-%m-%dT%H:%M:%S'),
+                      **({} if cal.wiring is None else {'wiring_check': cal.wiring.to_json()}),
                       parameters={n: {'value': num(v), 'std': num(s)}
                                   for n, v, s in zip(cal.fit.names, cal.fit.theta, cal.fit.theta_std)})
