@@ -71,9 +71,11 @@ class Calibration:
 
 
 def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
-                          test_fraction: float = 1 / 3, max_nfev: int = 200) -> Calibration:
+                          test_fraction: float = 1 / 3, max_nfev: int = 200,
+                          wiring: WiringCheck | None = None) -> Calibration:
     """Fit ``prior`` on ``data`` (see the module docstring). DataSourceError when there are too
-    few sweeps or their commands do not vary enough to pin the fans down."""
+    few sweeps or their commands do not vary enough to pin the fans down. ``wiring``: the
+    wiring check of the same sweeps, when already made (else it is made here)."""
     if len(data) < MIN_SWEEPS:
         raise DataSourceError(f'{len(data)} sweep(s) cannot calibrate a prior: record at least '
                               f'{MIN_SWEEPS} at different commands (`wind-shaper collect --design '
@@ -89,7 +91,7 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
     r = graded.model(held.U, held.Z) - held.y
     final = fit_model(graded.model, data.fit_data(cell), max_nfev=max_nfev)
     return Calibration(final, float(np.sqrt(np.mean(r ** 2))), graded.rmse, tuple(test.labels),
-                       len(data), data.source, data, wiring=check_wiring(data, prior.fans, cell=cell))
+                       len(data), data.source, data, wiring=wiring or check_wiring(data, prior.fans, cell=cell))
 
 
 def calibrate_default_prior(data: SweepSet, fans, **fit_options) -> Calibration:
@@ -100,7 +102,7 @@ def calibrate_default_prior(data: SweepSet, fans, **fit_options) -> Calibration:
     second kept when its held-out RMSE is lower by ``SHIFT_GAIN`` or more. ``compared`` says what
     each predicted."""
     plain = calibrate_from_sweeps(data, paper_prior(fans), **fit_options)
-    moved = calibrate_from_sweeps(data, sweep_prior(fans), **fit_options)
+    moved = calibrate_from_sweeps(data, sweep_prior(fans), wiring=plain.wiring, **fit_options)
     scores = (("the paper's prior", plain.heldout_rmse),
               ("the paper's prior with the field shifted", moved.heldout_rmse))
     if moved.heldout_rmse <= (1.0 - SHIFT_GAIN) * plain.heldout_rmse:
