@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
@@ -491,7 +492,12 @@ def test_set_model_swaps_the_prior_and_refuses_a_broken_one(graph, setup, tmp_pa
     r = graph.call(graph.set_model, SetModel.Request(model_yaml=path.read_text()))
     assert r.success, r.message
     assert repr(node._run.model) != old and 'sigma=0.2' in repr(node._run.model)
-    assert 'sigma=0.2' in r.message
+    assert 'sigma=0.2' in r.message and 'WARNING' not in r.message
+    # a model whose commissioning found two fans swapped is taken, with a warning that says so
+    doc = yaml.safe_load(path.read_text())
+    doc['wiring_check'] = {'checked': True, 'swapped': ['HM1', 'LM3']}
+    r = graph.call(graph.set_model, SetModel.Request(model_yaml=yaml.safe_dump(doc)))
+    assert r.success and 'WARNING' in r.message and 'HM1 and LM3' in r.message, r.message
     for request, reason in [
             (SetModel.Request(model_yaml='wind_shaper_model: 1\nmodel: {kind: nope}\n'), 'nope'),
             (SetModel.Request(model_yaml='[not a mapping'), 'model_yaml'),

@@ -31,6 +31,7 @@ from ..core.errors import ConfigError, WindShaperError
 from ..core.tunnel import Sweep
 from ..estimation import FieldEstimate, closest_samples
 from ..model import load_model, model_from_text
+from ..model.modelfile import wiring_warning
 from ..storage import IterationData, RunInfo, RunStore
 
 # The iteration's states, as wind_shaper_msgs/IterationStatus names them (a node test checks
@@ -167,6 +168,8 @@ class ShapingRun:
         self.last_record_folder = None  # the folder of the iteration written last
         #: the commissioning's field maps in the prior's model file, for the update's fit
         self.prior_maps: tuple = ()
+        #: what the model file set last says against shaping with it ('' for nothing)
+        self.model_warning = ''
         self.warm: WarmStart | None = None  # iteration 0's warm start, until it has run
 
     @classmethod
@@ -202,6 +205,13 @@ class ShapingRun:
             prior_maps, maps_note = setup.prior_maps()
         if maps_note:
             notes.append(('warning', maps_note))
+        model_file = store.model_path if store.model_path.is_file() else setup.model_path
+        try:
+            model_warning = wiring_warning(model_file.read_text(encoding='utf-8'))
+        except OSError:
+            model_warning = ''
+        if model_warning:
+            notes.append(('warning', model_warning))
         target = setup.make_target(state.target, model=model)
         if state.target != target_spec:
             notes.append(('warning', f'the run {store.folder} has target {state.target!r}; the '
@@ -218,6 +228,7 @@ class ShapingRun:
         run = cls(setup, store, model, state.target, target, history, state.next_k, U, last,
                   last_rmse, notes)
         run.prior_maps = prior_maps
+        run.model_warning = model_warning
         stored = store.info.config.get('warm_start')
         if last < 0 and isinstance(stored, dict) and np.allclose(stored.get('U', []), U, atol=1e-9):
             run.warm = WarmStart.from_state(stored, U)
@@ -268,6 +279,9 @@ class ShapingRun:
         self.prior_maps, note = self.setup.prior_maps(source=text)
         if note:
             self.notes.append(('warning', note))
+        self.model_warning = wiring_warning(text)
+        if self.model_warning:
+            self.notes.append(('warning', self.model_warning))
         return model
 
     # -- the update ----------------------------------------------------------------------------------

@@ -142,3 +142,21 @@ def commissioning_maps_in(source, key_points, n_fans: int, *, text: bool = False
     except (OSError, yaml.YAMLError, LimitError) as exc:
         return [], f'the model file\'s commissioning maps are not used: it cannot be read ({exc})'
     return read_commissioning_maps(doc, key_points, n_fans)
+
+
+def wiring_warning(text: str) -> str:
+    """What the commissioning's wiring check (``workbench.wiring``, kept by `calibrate` as
+    ``wiring_check``) says against the model file's ``text``: a warning naming two fans whose
+    command channels looked swapped, else '' (no check kept, none found, or unreadable)."""
+    try:
+        doc = load_yaml(text, 'model text')
+    except (yaml.YAMLError, LimitError):
+        return ''
+    check = doc.get('wiring_check') if isinstance(doc, dict) else None
+    pair = check.get('swapped') if isinstance(check, dict) else None
+    if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)):
+        return ''
+    return (f'the commissioning that fitted this model found fans {pair[0]} and {pair[1]} with their '
+            f'command channels swapped: it describes them in the wrong places. Rewire them (or '
+            f'exchange their entries in `channels` in config/fan_output.yaml), record the designed '
+            f'sweeps again and calibrate on those before shaping with it')

@@ -304,6 +304,7 @@ class CoordinatorNode(Node):
                                                   name='wind_shaper-set_model')
             with self.lock:
                 self._run.adopt_model(text, model)
+                warning = self._run.model_warning
         except Exception as exc:  # noqa: BLE001 - any refusal is answered, never raised
             response.success = False
             response.message = (f'model refused, the old one stays: {why(exc)} (prior in use: '
@@ -315,7 +316,11 @@ class CoordinatorNode(Node):
                 self._model_check = False
         response.success = True
         response.message = f'prior set from {source}: {model!r}'
-        self.get_logger().info(response.message)
+        if warning:
+            response.message += f'; WARNING: {warning}'
+            self.get_logger().warning(response.message)
+        else:
+            self.get_logger().info(response.message)
         return response
 
 

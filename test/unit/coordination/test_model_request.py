@@ -65,3 +65,30 @@ def test_a_model_file_with_commissioning_maps_gives_them_to_the_run(setup, run):
     doc['commissioning_maps'] = commissioning_maps_section(maps, kp + 0.05)
     run.set_model(yaml.safe_dump(doc), 'the test')
     assert run.prior_maps == () and any('other key points' in t for _, t in run.notes)
+
+
+def test_a_model_whose_commissioning_found_swapped_fans_is_set_with_a_warning(setup, run, tmp_path):
+    """set_model with a file whose wiring check (`calibrate`) named two swapped fans: the model
+    is taken (the lab decides), and the run's notes say which fans and what to do; a file whose
+    check found none, or that keeps no check, adds no such note."""
+    import yaml
+
+    from wind_shaper.model.modelfile import wiring_warning
+    doc = yaml.safe_load((setup.config_dir / 'model.yaml').read_text())
+    doc['wiring_check'] = {'checked': True, 'swapped': ['HM1', 'LM3'], 'rmse_as_wired_N': 0.8,
+                           'rmse_swapped_N': 0.3, 'why': ''}
+    run.set_model(yaml.safe_dump(doc), 'the test')
+    assert 'HM1 and LM3' in run.model_warning and 'channels' in run.model_warning
+    assert any(kind == 'warning' and 'HM1 and LM3' in text for kind, text in run.notes)
+    doc['wiring_check']['swapped'] = None
+    run.set_model(yaml.safe_dump(doc), 'the test')
+    assert run.model_warning == ''
+    assert wiring_warning((setup.config_dir / 'model.yaml').read_text()) == ''
+    assert wiring_warning('wiring_check: {swapped: [1, 2]}') == ''          # malformed: nothing said
+    assert wiring_warning(': not yaml [') == ''
+    # a run opened again on its folder, whose model file says so, carries the note from its start
+    doc['wiring_check']['swapped'] = ['LM1', 'HM1']
+    run.set_model(yaml.safe_dump(doc), 'the test')
+    again = ShapingRun.open(setup, tmp_path, 'r', 'parabolic')
+    assert 'LM1 and HM1' in again.model_warning
+    assert any(kind == 'warning' and 'LM1 and HM1' in text for kind, text in again.notes)
