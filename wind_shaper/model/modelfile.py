@@ -144,19 +144,36 @@ def commissioning_maps_in(source, key_points, n_fans: int, *, text: bool = False
     return read_commissioning_maps(doc, key_points, n_fans)
 
 
+def routing_text(drives) -> str:
+    """What the wiring check found (``workbench.wiring``): 'fans A and B look swapped' for an exchange, else 'the command for A drives B, ...'."""
+    drives = [tuple(p) for p in drives]
+    if len(drives) == 2 and drives[0] == drives[1][::-1]:
+        return f'fans {drives[0][0]} and {drives[0][1]} look swapped'
+    return 'the commands look misrouted: ' + ', '.join(f'the command for {a} drives {b}' for a, b in drives)
+
+
 def wiring_warning(text: str) -> str:
     """What the commissioning's wiring check (``workbench.wiring``, kept by `calibrate` as
-    ``wiring_check``) says against the model file's ``text``: a warning naming two fans whose
-    command channels looked swapped, else '' (no check kept, none found, or unreadable)."""
+    ``wiring_check``) says against the model file's ``text``: a warning naming the fans whose
+    command channels looked misrouted, else '' (no check kept, none found, or unreadable)."""
     try:
         doc = load_yaml(text, 'model text')
     except (yaml.YAMLError, LimitError):
         return ''
     check = doc.get('wiring_check') if isinstance(doc, dict) else None
-    pair = check.get('swapped') if isinstance(check, dict) else None
-    if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)):
+    if not isinstance(check, dict):
         return ''
-    return (f'the commissioning that fitted this model found fans {pair[0]} and {pair[1]} with their '
-            f'command channels swapped: it describes them in the wrong places. Rewire them (or '
-            f'exchange their entries in `channels` in config/fan_output.yaml), record the designed '
-            f'sweeps again and calibrate on those before shaping with it')
+    drives, fans = check.get('drives'), check.get('swapped')
+    if (isinstance(drives, list) and len(drives) >= 2
+            and all(isinstance(p, list) and len(p) == 2 and all(isinstance(n, str) for n in p) for p in drives)):
+        found = routing_text(drives)
+    elif isinstance(fans, list) and len(fans) >= 2 and all(isinstance(n, str) for n in fans):
+        # a file that keeps the fans but not the routing
+        found = (f'fans {fans[0]} and {fans[1]} with their command channels swapped' if len(fans) == 2
+                 else f'fans {", ".join(fans)} with their command channels misrouted')
+    else:
+        return ''
+    return (f'the commissioning that fitted this model found {found}: it describes those fans in '
+            f'the wrong places. Rewire their ESC leads (or correct their entries in `channels` in '
+            f'config/fan_output.yaml), record the designed sweeps again and calibrate on those '
+            f'before shaping with it')

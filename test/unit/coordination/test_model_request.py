@@ -86,6 +86,13 @@ def test_a_model_whose_commissioning_found_swapped_fans_is_set_with_a_warning(se
     assert wiring_warning((setup.config_dir / 'model.yaml').read_text()) == ''
     assert wiring_warning('wiring_check: {swapped: [1, 2]}') == ''          # malformed: nothing said
     assert wiring_warning(': not yaml [') == ''
+    # three fans moved round: the warning says which command drives which fan
+    cycle = [['LM1', 'HM1'], ['HM1', 'LM2'], ['LM2', 'LM1']]
+    doc['wiring_check'].update(swapped=['LM1', 'HM1', 'LM2'], drives=cycle)
+    said = wiring_warning(yaml.safe_dump(doc))
+    assert all(f'the command for {a} drives {b}' in said for a, b in cycle) and 'channels' in said
+    doc['wiring_check']['drives'] = [['LM1', 3]]          # malformed routing: the fans are named
+    assert 'LM1, HM1, LM2' in wiring_warning(yaml.safe_dump(doc))
     # a run opened again on its folder, whose model file says so, carries the note from its start
     doc['wiring_check']['swapped'] = ['LM1', 'HM1']
     run.set_model(yaml.safe_dump(doc), 'the test')
