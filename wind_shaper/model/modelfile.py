@@ -145,7 +145,9 @@ def commissioning_maps_in(source, key_points, n_fans: int, *, text: bool = False
 
 
 def routing_text(drives) -> str:
-    """What the wiring check found (``workbench.wiring``): 'fans A and B look swapped' for an exchange, else 'the command for A drives B, ...'."""
+    """What the wiring check found (``workbench.wiring``), from ((command meant for, fan it
+    drives), ...): 'fans A and B look swapped' for an exchange, else 'the command for A drives
+    B, ...'."""
     drives = [tuple(p) for p in drives]
     if len(drives) == 2 and drives[0] == drives[1][::-1]:
         return f'fans {drives[0][0]} and {drives[0][1]} look swapped'

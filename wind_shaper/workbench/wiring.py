@@ -30,7 +30,7 @@ __all__ = ['WiringCheck', 'check_wiring', 'MARGIN', 'STEP', 'EXHAUSTIVE', 'MAX_F
 
 #: A routing is reported when it leaves at most this share of the RMSE as wired.
 MARGIN = 0.7
-#: Up to this many enabled fans every routing is tried (8! = 40320 fits, about a second).
+#: Up to this many enabled fans every routing is tried (8! = 40320 fits: 0.2-0.3 s CPU, measured).
 EXHAUSTIVE = 8
 #: Above EXHAUSTIVE fans, a round of the greedy search keeps its best exchange only when it
 #: leaves at most this share of the RMSE before it.
