@@ -704,3 +704,60 @@ def test_the_eleventh_written_tunnels_load_and_their_effects_do_what_they_say():
     same = np.full(n, 3.0)
     same[j] = 6.0
     assert np.isclose(recover.thrust(same, geo)[j], 6.0 * level[j] / 3.0)   # its own speed adds nothing
+
+
+def test_the_twelfth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04e: every file loads (3); neighbouring rotors at the same
+    speed lose thrust and detuned ones do not, a pair on one power stage saturates together (a
+    fan alone on none is untouched), and the ring jets land nearer the axis the more total
+    thrust the fans make (the axis jet stays)."""
+    geo, pos = _written_tunnels_load('written_2026-12-04e', 3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.effects import EffectError
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    names = list(geo.fans.names)
+    centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
+
+    beat = make_effect('rotor_beat', depth=0.15, band=0.08)
+    np.testing.assert_allclose(beat.thrust(np.full(n, 3.0), geo), 3.0 * 0.85)   # all locked
+    detuned = 3.0 * 2.0 ** np.arange(n)     # every neighbour's speed far apart
+    np.testing.assert_allclose(beat.thrust(detuned, geo), detuned, rtol=1e-6)
+    one_off = np.full(n, 3.0)
+    one_off[0] = 0.0                          # a stopped rotor sheds nothing to beat with
+    out = beat.thrust(one_off, geo)
+    near = [k for k in range(1, n) if np.hypot(*(pos[k] - pos[0])) < 0.26]   # its two ring neighbours and the centre
+    far = [k for k in range(1, n) if k not in near]
+    assert out[0] == 0.0 and len(near) == 3
+    # a neighbour keeps the loss of its running neighbours only: 0.15 x (those running / all)
+    for k in near:
+        count = sum(1 for j in range(n) if j != k and np.hypot(*(pos[j] - pos[k])) < 0.26)
+        np.testing.assert_allclose(out[k], 3.0 * (1 - 0.15 * (count - 1) / count))
+    np.testing.assert_allclose(out[far], 3.0 * 0.85)
+
+    stage = make_effect('shared_power_stage', cap=4.0, pairs=[['CM', 'LM2']])
+    t = np.full(n, 3.0)
+    out = stage.thrust(t, geo)
+    a, b = names.index('CM'), names.index('LM2')
+    np.testing.assert_allclose(out[[a, b]], 3.0 * 4.0 * np.tanh(6.0 / 4.0) / 6.0)
+    others = [j for j in range(n) if j not in (a, b)]
+    np.testing.assert_allclose(out[others], 3.0)
+    harder = t.copy()
+    harder[a] = 6.0
+    assert stage.thrust(harder, geo)[b] < out[b]   # one running harder takes from its partner
+    with pytest.raises(EffectError):
+        make_effect('shared_power_stage', pairs=[['CM', 'CM']]).validate(geo)
+
+    flex = make_effect('deck_flex', flex=0.25, thrust_ref=25.0)
+
+    def landing(thrust):
+        g = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+        return flex.sources([g], thrust, geo)[0].centres
+
+    light, heavy = landing(np.full(n, 1.0)), landing(np.full(n, 5.0))
+    ring = [j for j in range(n) if j != centre]
+    r = np.hypot(*pos[ring].T)
+    assert np.all(np.hypot(*heavy[ring].T) < np.hypot(*light[ring].T))
+    assert np.all(np.hypot(*light[ring].T) < r)
+    np.testing.assert_allclose(np.hypot(*heavy[ring].T), r * (1 - 0.25 * 35.0 / 60.0))
+    np.testing.assert_allclose(heavy[centre], pos[centre], atol=1e-12)
