@@ -761,3 +761,56 @@ def test_the_twelfth_written_tunnels_load_and_their_effects_do_what_they_say():
     assert np.all(np.hypot(*light[ring].T) < r)
     np.testing.assert_allclose(np.hypot(*heavy[ring].T), r * (1 - 0.25 * 35.0 / 60.0))
     np.testing.assert_allclose(heavy[centre], pos[centre], atol=1e-12)
+
+
+def test_the_thirteenth_written_tunnels_load_and_their_effects_do_what_they_say():
+    """bench/tunnels/written_2026-12-04f: every file loads (3); an even thrust leaves the jets
+    where they are and a lopsided one moves every jet (the axis jet too) toward the side that
+    pushes hardest; the ring vortex lifts the axis only when the ring outruns the central fan;
+    a jet moves toward a stronger neighbour, never toward a weaker one."""
+    geo, pos = _written_tunnels_load('written_2026-12-04f', 3)
+    from wind_shaper.sim import make_effect
+    from wind_shaper.sim.physics import FlatTop, JetGroup
+    n = len(pos)
+    names = list(geo.fans.names)
+    centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
+
+    def landing(effect, thrust):
+        g = JetGroup(FlatTop(2.0), pos.copy(), np.ones(n), np.full(n, 0.1), np.arange(n))
+        return effect.sources([g], np.asarray(thrust, float), geo)[0].centres
+
+    rock = make_effect('deck_rock', rock=0.6, thrust_ref=10.0)
+    np.testing.assert_allclose(landing(rock, np.full(n, 3.0)), pos, atol=1e-12)   # hexagon: no moment
+    lopsided = np.full(n, 2.0)
+    lm1 = names.index('LM1')
+    lopsided[lm1] = 6.0
+    moved = landing(rock, lopsided) - pos
+    toward = pos[lm1] / np.linalg.norm(pos[lm1])
+    np.testing.assert_allclose(moved, np.broadcast_to(moved[centre], moved.shape), atol=1e-12)
+    np.testing.assert_allclose(moved[centre], 0.6 * 4.0 * pos[lm1] / (lopsided.sum() + 10.0), atol=1e-12)
+    assert moved[centre] @ toward > 0
+
+    lift = make_effect('ring_vortex_lift', lift=0.3, ratio=1.0, knee=0.3, width=0.09)
+
+    def bump(thrust):
+        groups = lift.sources([], np.asarray(thrust, float), geo)
+        return float(groups[0].amplitude[0]) if groups else 0.0
+
+    ring_ahead = np.full(n, 3.0)
+    ring_ahead[centre] = 0.0
+    behind = np.full(n, 0.5)
+    behind[centre] = 5.0
+    assert bump(ring_ahead) > 0.3 * 2.9          # about lift x (3 - 0): the vortex is up
+    assert 0 < bump(behind) < 1e-6               # the ring far behind: next to nothing
+
+    capture = make_effect('neighbour_capture', capture=0.3, t0=0.5)
+    strong = np.full(n, 2.0)
+    strong[lm1] = 6.0
+    moved = landing(capture, strong) - pos
+    np.testing.assert_allclose(moved[lm1], 0.0, atol=1e-12)   # the strongest jet stays put
+    near = [k for k in range(n) if k != lm1 and np.hypot(*(pos[k] - pos[lm1])) < 0.26]
+    assert len(near) == 3                                      # two ring neighbours and the centre
+    for k in near:
+        np.testing.assert_allclose(moved[k], 0.3 * 4.0 / 8.5 * (pos[lm1] - pos[k]), atol=1e-12)
+    far = [k for k in range(n) if k != lm1 and k not in near]
+    np.testing.assert_allclose(moved[far], 0.0, atol=1e-12)   # equal neighbours pull nothing
