@@ -9,7 +9,7 @@ import random_tunnels as rt
 cases_file, out, seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
 sets = [kv.split('=', 1) for kv in sys.argv[4:]]
 stored = {}
-for f in [g for g in glob.glob('/work/main/bench/out/level_top/*.json') if 'screen' not in g and 'without' not in g]:
+for f in [g for g in glob.glob('/work/main/bench/out/level_top/*.json') if 'screen' not in g and 'without' not in g] + ['/work/main/bench/out/twelfth/written_2026-12-04e.json', '/work/main/bench/out/eleventh/written_2026-12-04d.json', '/work/main/bench/out/draw_2037/random_tunnels_2037.json', '/work/main/bench/out/draw_2038/random_tunnels_2038.json', '/work/main/bench/out/thirteenth/written_2026-12-04f.json']:
     for r in json.load(open(f))['cases']:
         stored[r['case']] = r
 written = {}
