@@ -37,12 +37,7 @@ class DeckRock(HiddenEffect):
         t = np.where(on, np.maximum(np.asarray(thrust, float), 0.0), 0.0)
         hubs = np.asarray(geometry.fans.positions, float)
         shift = self.rock * (t @ hubs) / (t.sum() + self.thrust_ref)
-        for g in groups:
-            ok = np.flatnonzero(g.fan >= 0)
-            if len(ok):
-                g.centres = np.asarray(g.centres, float).copy()
-                g.centres[ok] += shift
-        return groups
+        return _shift_jets(groups, np.broadcast_to(shift, hubs.shape))
 
 
 @dataclass(frozen=True)
@@ -107,12 +102,18 @@ class NeighbourCapture(HiddenEffect):
             for j, k in ((a, b), (b, a)):
                 pull = max(0.0, t[k] - t[j]) / (t[k] + t[j] + self.t0)
                 shift[j] += self.capture * pull * (hubs[k] - hubs[j])
-        for g in groups:
-            ok = np.flatnonzero(g.fan >= 0)
-            if len(ok):
-                g.centres = np.asarray(g.centres, float).copy()
-                g.centres[ok] += shift[g.fan[ok]]
-        return groups
+        return _shift_jets(groups, shift)
+
+
+def _shift_jets(groups, shift):
+    """Every fan's jets moved by that fan's row of ``shift`` (n_fans, 2) [m]; sources that are
+    not a fan's (interaction terms) stay."""
+    for g in groups:
+        ok = np.flatnonzero(g.fan >= 0)
+        if len(ok):
+            g.centres = np.asarray(g.centres, float).copy()
+            g.centres[ok] += shift[g.fan[ok]]
+    return groups
 
 
 register_effects(DeckRock, RingVortexLift, NeighbourCapture)
