@@ -1,5 +1,5 @@
 """Screen a rule setting on chosen landing_full cases: shipped only, seeds 0..S-1, against the
-stored shipped and flat runs of the same seeds.  usage: screen.py CASES.txt OUT.json SEEDS [k=v ...]"""
+stored shipped and flat runs of the same seeds.  usage: screen.py CASES.txt OUT.json SEEDS [k=v ...]; ITERS=N in the environment: k up to N (12)"""
 import sys, json, glob, tempfile, time
 from pathlib import Path
 import numpy as np
@@ -43,7 +43,7 @@ for pname, rows in by_plant.items():
         for r in rows:
             tv = plant.setup.make_target(r['target']).values(kp)
             zs = r['zeta_star_N2']
-            R = [np.array(cv.run_method(plant, tv, cfg, s, 12)['mse']) / zs for s in range(seeds)]
+            R = [np.array(cv.run_method(plant, tv, cfg, s, int(os.environ.get('ITERS', 12)))['mse']) / zs for s in range(seeds)]
             res[r['case']] = {'new': np.round(R, 4).tolist(),
                               'base': r['methods']['warm+short']['ratio_per_seed'][:seeds],
                               'flat': r['methods']['flat']['ratio_per_seed'][:seeds]}
