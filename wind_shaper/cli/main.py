@@ -122,10 +122,14 @@ def _cmd_calibrate(args) -> int:
 def _calibrate_from_data(setup, args) -> int:
     from ..workbench.calibrate import calibrate_default_prior, calibrate_from_sweeps
     from ..workbench.data import load_sweeps
+    from ..workbench.errors import WiringSweepsOnly
     fans = setup.geometry.fans
     data = load_sweeps(args.data, fans.names)
-    cal = (calibrate_from_sweeps(data, setup.load_model(args.model)) if args.model
-           else calibrate_default_prior(data, fans))
+    try:
+        cal = (calibrate_from_sweeps(data, setup.load_model(args.model)) if args.model
+               else calibrate_default_prior(data, fans))
+    except WiringSweepsOnly as only:
+        return _report_wiring_only(only)
     return _report_calibration(cal, args.out or Path('models') / f'{Path(args.data).name or "calibrated"}.yaml',
                                setup)
 
@@ -135,6 +139,7 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
     (as `collect --design SPEC` and `calibrate --data` would through the graph), then the fit."""
     from ..experiment.design import DesignError
     from ..workbench.calibrate import commission_from_design
+    from ..workbench.errors import WiringSweepsOnly
     try:
         cal = commission_from_design(setup.make_sim(seed=args.seed), args.design, setup.shaping.u_min,
                                      setup.shaping.u_max, n_samples=setup.shaping.samples_per_sweep,
@@ -143,7 +148,19 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
     except DesignError as exc:
         print(f'wind-shaper calibrate: {exc}', file=sys.stderr)
         return 2
+    except WiringSweepsOnly as only:
+        return _report_wiring_only(only)
     return _report_calibration(cal, args.out or setup.model_path, setup)
+
+
+def _report_wiring_only(only) -> int:
+    """Sweeps of the single-off design: the wiring check's verdict, no model file. 0 when the
+    wiring is as configured, 1 when a misrouting is named or not settled."""
+    verdict = only.wiring
+    doubt = verdict.checked and (verdict.swapped is not None or bool(verdict.why))
+    print(verdict.text, file=sys.stderr if doubt else sys.stdout)
+    print(f'no model file written: {only}')
+    return 1 if doubt else 0
 
 
 def _report_calibration(cal, out, setup) -> int:

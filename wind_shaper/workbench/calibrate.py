@@ -22,9 +22,9 @@ import numpy as np
 from ..model import Term, paper_prior, save_model, sweep_prior
 from ..model.modelfile import MAPS_KEY, commissioning_maps_section, write_model_doc
 from .data import SweepSet
-from .errors import DataSourceError
+from .errors import DataSourceError, WiringSweepsOnly
 from .fitting import FitResult, fit_model
-from .wiring import WiringCheck, check_wiring
+from .wiring import WiringCheck, check_wiring, is_single_off
 
 __all__ = ['Calibration', 'calibrate_from_sweeps', 'calibrate_default_prior', 'commission_from_design',
            'commissioning_maps', 'keep_commissioning_maps', 'save_calibration', 'MIN_SWEEPS', 'SHIFT_GAIN']
@@ -81,6 +81,12 @@ def calibrate_from_sweeps(data: SweepSet, prior: Term, *, cell: float = 0.03,
                               f'{MIN_SWEEPS} at different commands (`wind-shaper collect --design '
                               f'lhs:6+level`)')
     spread = data.command_spread(np.asarray(prior.fans.enabled, bool))['median']
+    if spread < 0.05 and is_single_off(data, prior.fans):
+        raise WiringSweepsOnly('these sweeps (every fan at one command, then each switched off in '
+                               'turn) check the wiring, but their commands hardly vary: a prior '
+                               'fitted on them cannot tell the fans apart; record a designed '
+                               'experiment to calibrate (`wind-shaper collect --design lhs:6+level`)',
+                               check_wiring(data, prior.fans, cell=cell))
     if spread < 0.05:
         raise DataSourceError(f'the sweeps\' commands hardly vary (median spread {100 * spread:.1f} % '
                               f'PWM): a prior fitted on them cannot tell the fans apart; record a '

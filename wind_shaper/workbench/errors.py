@@ -10,6 +10,15 @@ class DataSourceError(WorkbenchError, ValueError):
     """Sweeps cannot be read from a bag, run folder or report, or there are too few of them."""
 
 
+class WiringSweepsOnly(DataSourceError):
+    """The sweeps are the single-off design: they check the wiring (``wiring``, a
+    ``WiringCheck``) but do not vary the commands enough to calibrate a prior."""
+
+    def __init__(self, message: str, wiring):
+        super().__init__(message)
+        self.wiring = wiring
+
+
 class FitError(WorkbenchError, ValueError):
     """A model cannot be fitted to the data (too few samples, fans that do not match)."""
 

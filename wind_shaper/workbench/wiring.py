@@ -16,6 +16,17 @@ exchange of two fans' commands on top of the routing so far and keeps the best w
 the RMSE below ``STEP`` times the round before's. The routing found is reported when its RMSE
 is below ``margin`` times the RMSE as wired (docs/commissioning.md gives the figures measured
 on the bench's tunnels).
+
+Sweeps of the ``single-off`` design (every fan at one command, then each switched off in turn)
+are checked another way, which needs no search and no margin against the prior's misfit, so it
+holds on fan walls too: each command switched off leaves a gap in the field, the level sweep's
+field less that sweep's, cell by cell; the gap is scored against every fan's footprint (a
+matched filter: the weighted covariance of the gap with the footprint over the cells the sweep
+passed, per unit of the footprint's norm), the commands are assigned to the fans by those
+scores (``linear_sum_assignment``), and each cycle of commands moved round is named when
+their gaps together score higher at the fans they are assigned to than at their own by
+``Z_NAMED`` times the noise of that difference (the samples' scatter within a cell, pooled),
+each move by ``Z_NOTED``; a cycle with less evidence is reported as not settled.
 """
 from __future__ import annotations
 
@@ -23,10 +34,11 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from ..model.modelfile import routing_text
 
-__all__ = ['WiringCheck', 'check_wiring', 'MARGIN', 'STEP', 'EXHAUSTIVE', 'MAX_FANS']
+__all__ = ['WiringCheck', 'check_wiring', 'is_single_off', 'MARGIN', 'STEP', 'EXHAUSTIVE', 'MAX_FANS', 'Z_NAMED', 'Z_NOTED']
 
 #: A routing is reported when it leaves at most this share of the RMSE as wired.
 MARGIN = 0.7
@@ -37,6 +49,14 @@ EXHAUSTIVE = 8
 STEP = 0.9
 #: Above this many enabled fans the exchanges are too many to try (n (n - 1) / 2 fits a round).
 MAX_FANS = 40
+#: In single-off sweeps a cycle of moved commands is named when their gaps together fit the fans
+#: they are assigned to better than their own by at least this many noise sds (and each move by
+#: Z_NOTED); measured on the bench's tunnels: every misrouting at 13 or more, no alternative to a
+#: correct wiring above 0.2.
+Z_NAMED = 3.0
+#: A cycle with less joint evidence than this (noise sds) is the noise's and not reported; from it
+#: up to a named cycle it is reported as not settled.
+Z_NOTED = 1.0
 
 
 @dataclass(frozen=True)
@@ -45,13 +65,19 @@ class WiringCheck:
     fan whose motor it drives), ...) of the routing that fits best, empty when none fits better
     than ``MARGIN`` x as wired; rmse_as_wired, rmse_swapped [N]: the fit's RMSE over the cell
     means as wired and with the commands so rerouted (the best single exchange's when none is
-    reported; nan when not checked)."""
+    reported; nan when not checked or checked on single-off sweeps); method: 'fit' (the routings'
+    fits) or 'located' (single-off sweeps, each command's gap located); evidence [noise sds]:
+    for 'located', the weakest named cycle's joint margin when a routing is named (of the
+    cycles not settled when none is), else the largest margin by which any command's gap alone
+    fits another fan better than its own (negative: none does)."""
 
     checked: bool
     drives: tuple[tuple[str, str], ...]
     rmse_as_wired: float
     rmse_swapped: float
     why: str = ''
+    method: str = 'fit'
+    evidence: float = float('nan')
 
     @property
     def swapped(self) -> tuple[str, ...] | None:
@@ -62,6 +88,8 @@ class WiringCheck:
     def text(self) -> str:
         if not self.checked:
             return f'wiring not checked: {self.why}'
+        if self.method == 'located':
+            return self._located_text()
         if not self.drives:
             return (f'wiring: as configured (no rerouting of the fans\' commands fits the sweeps '
                     f'better; RMSE {self.rmse_as_wired:.3f} N as wired)')
@@ -71,12 +99,34 @@ class WiringCheck:
                 f'config/fan_output.yaml), record the designed sweeps again and calibrate on those; '
                 f'a prior fitted on these sweeps describes the fans in the wrong places.')
 
+    def _located_text(self) -> str:
+        if not self.drives:
+            if self.why:
+                return f'wiring: not settled: {self.why}'
+            if self.evidence < 0:
+                nearest = f'no other fan fits a gap as well, the nearest by {-self.evidence:.1f} noise sds'
+            else:
+                nearest = (f'one gap alone fits a neighbour {self.evidence:.1f} noise sds better, too '
+                           f'little to name a routing')
+            return (f'wiring: as configured (in the sweeps with one fan off, each command left its '
+                    f'gap at its own fan; {nearest})')
+        also = f' Not settled: {self.why}.' if self.why else ''
+        return (f'WIRING: {routing_text(self.drives)}: in the sweeps with one fan off, these '
+                f'commands left their gaps where the other fans\' jets land (by {self.evidence:.1f} '
+                f'noise sds or more). Check these fans\' ESC leads on the flight controller (or '
+                f'their entries in `channels` in config/fan_output.yaml), record the sweeps again and '
+                f'calibrate on those; a prior fitted on these sweeps describes the fans in the wrong '
+                f'places.{also}')
+
     def to_json(self) -> dict:
+        def rounded(x, keep):
+            return round(float(x), 5) if keep and np.isfinite(x) else None
         return {'checked': self.checked, 'swapped': None if not self.drives else list(self.swapped),
                 'drives': [list(p) for p in self.drives],
-                'rmse_as_wired_N': round(self.rmse_as_wired, 5) if self.checked else None,
-                'rmse_swapped_N': round(self.rmse_swapped, 5) if self.checked and self.drives else None,
-                'why': self.why}
+                'rmse_as_wired_N': rounded(self.rmse_as_wired, self.checked),
+                'rmse_swapped_N': rounded(self.rmse_swapped, self.checked and self.drives),
+                'why': self.why, 'method': self.method,
+                'evidence_sd': rounded(self.evidence, self.checked)}
 
 
 def check_wiring(data, fans, *, cell: float = 0.03, margin: float = MARGIN) -> WiringCheck:
@@ -92,6 +142,9 @@ def check_wiring(data, fans, *, cell: float = 0.03, margin: float = MARGIN) -> W
     names = list(fans.names)
     if len(on) < 2:
         return WiringCheck(False, (), float('nan'), float('nan'), 'fewer than two fans enabled')
+    singles = _single_off_sweeps(data, on)
+    if singles is not None:
+        return _located_check(data, fans, on, *singles, cell=cell)
     if len(on) > MAX_FANS:
         return WiringCheck(False, (), float('nan'), float('nan'),
                            f'{len(on)} fans enabled, more than the {MAX_FANS} whose exchanges it tries')
@@ -154,3 +207,132 @@ def check_wiring(data, fans, *, cell: float = 0.03, margin: float = MARGIN) -> W
         drives = tuple((names[on[order[k]]], names[on[k]]) for k in range(n) if order[k] != k)
         return WiringCheck(True, drives, as_wired, current)
     return WiringCheck(True, (), as_wired, first_best)
+
+
+def is_single_off(data, fans) -> bool:
+    """Whether ``data`` holds the ``single-off`` design for ``fans``: a level sweep and, for
+    every enabled fan, one with only that fan off (the check then locates each command's gap)."""
+    return _single_off_sweeps(data, np.flatnonzero(np.asarray(fans.enabled, bool))) is not None
+
+
+def _cycles(order) -> list[list[int]]:
+    """The cycles (longer than one) of the permutation ``order`` (i -> order[i])."""
+    seen, cycles = set(), []
+    for start in range(len(order)):
+        if start in seen or order[start] == start:
+            continue
+        cycle, i = [], start
+        while i not in seen:
+            seen.add(i)
+            cycle.append(i)
+            i = int(order[i])
+        cycles.append(cycle)
+    return cycles
+
+
+def _single_off_sweeps(data, on) -> tuple[int, dict] | None:
+    """(index of the level sweep, {enabled fan: index of the sweep with only it off}) when
+    ``data`` holds a sweep with every enabled fan at one command above 0 and, for every enabled
+    fan, a sweep with it off and the others at that command; else None."""
+    U = np.array([np.asarray(s.pwm, float) for s in data.sweeps])
+    if U.ndim != 2 or not len(U):
+        return None
+    level = next((i for i, u in enumerate(U[:, on]) if np.all(u > 0) and np.ptp(u) < 1e-9), None)
+    if level is None:
+        return None
+    u_level = U[level, on[0]]
+    singles: dict[int, int] = {}
+    for i, u in enumerate(U[:, on]):
+        off = np.flatnonzero(u <= 0)
+        if len(off) == 1 and np.all(np.abs(np.delete(u, off) - u_level) < 1e-9):
+            singles.setdefault(int(on[off[0]]), i)
+    return (level, singles) if len(singles) == len(on) else None
+
+
+def _located_check(data, fans, on, level: int, singles: dict, cell: float) -> WiringCheck:
+    """The check on single-off sweeps (module docstring): each command's gap located among the
+    fans' footprints (the paper's prior at the level command)."""
+    from ..control.basis import FanBasis
+    from ..model import paper_prior
+    names = list(fans.names)
+    n = len(on)
+    fd = data.fit_data(None)
+    used = [level] + [singles[int(c)] for c in on]
+    keep = np.isin(fd.sweep, used)
+    y = np.asarray(fd.y, float)[keep]
+    row = {s: r for r, s in enumerate(used)}
+    rows = np.array([row[int(s)] for s in fd.sweep[keep]], dtype=int)
+    keys, cells = np.unique(np.floor(fd.Z[keep] / cell).astype(np.int64), axis=0, return_inverse=True)
+    cells = cells.ravel()
+    S, K = len(used), len(keys)
+    sums, count, squares = np.zeros((S, K)), np.zeros((S, K)), np.zeros((S, K))
+    np.add.at(sums, (rows, cells), y)
+    np.add.at(count, (rows, cells), 1.0)
+    np.add.at(squares, (rows, cells), y ** 2)
+    # the samples' scatter within a cell, pooled: the noise of one sample [N]
+    dof = float(np.maximum(count - 1, 0).sum())
+    if dof < 10:
+        return WiringCheck(False, (), float('nan'), float('nan'),
+                           'too few samples share a cell of the sweeps with one fan off', method='located')
+    sigma = float(np.sqrt(max((squares - sums ** 2 / np.maximum(count, 1)).sum(), 0.0) / dof))
+    # the level field: every used sweep pooled (each gap is spread over the rest by 1 / S, the
+    # same for every command, so the assignment is not moved by it)
+    reference = sums.sum(axis=0) / np.maximum(count.sum(axis=0), 1.0)
+    W = count[1:]                                                       # (n, K) samples per cell
+    D = np.where(W > 0, reference - sums[1:] / np.maximum(W, 1.0), 0.0)   # the gaps [N]
+    basis = FanBasis.from_term(paper_prior(fans), (keys + 0.5) * cell, sparse=False)
+    u_level = np.asarray(data.sweeps[level].pwm, float)
+    F = np.asarray(basis.shape)[:, on] * basis.thrust(u_level)[0][on]   # (K, n) footprints [N]
+    total = W.sum(axis=1, keepdims=True)
+    cross = (W * D) @ F - (W * D).sum(axis=1, keepdims=True) * (W @ F) / total
+    norm2 = W @ F ** 2 - (W @ F) ** 2 / total
+    score = cross / np.sqrt(np.maximum(norm2, 1e-30))   # (command, fan) [N]; noise sd sigma each
+    centred = F - F.mean(axis=0)
+    centred /= np.maximum(np.linalg.norm(centred, axis=0), 1e-30)
+
+    def gain(c: int, k: int) -> tuple[float, float]:
+        """How much better command c's gap fits fan k than its own fan [N], and the noise sd of
+        that difference [N]."""
+        spread = sigma * np.sqrt(max(2.0 - 2.0 * float(centred[:, c] @ centred[:, k]), 1e-12))
+        return float(score[c, k] - score[c, c]), spread
+
+    def margin(c: int, k: int) -> float:
+        """The same in noise sds."""
+        better, spread = gain(c, k)
+        return better / spread
+
+    # every score has the same noise (sigma), so the assignment that fits the gaps best overall
+    # is the one with the largest summed score
+    _, assigned = linear_sum_assignment(-score)
+    named, unsure, weakest_named, weakest_unsure = [], [], np.inf, np.inf
+    for cycle in _cycles(assigned):
+        # A routing moves commands round in cycles. A cycle is judged on all its moves together
+        # (their summed gain against its noise), and named only when each move has some evidence
+        # too: on a large wall noise may move two faint neighbours, and the gap of a corner fan,
+        # which the wall's edge cuts, may be the one weak link of a real cycle.
+        gains = [gain(c, int(assigned[c])) for c in cycle]
+        joint = sum(g for g, _ in gains) / np.sqrt(sum(sd ** 2 for _, sd in gains))
+        weakest = min(g / sd for g, sd in gains)
+        if joint >= Z_NAMED and weakest >= Z_NOTED:
+            named += cycle
+            weakest_named = min(weakest_named, joint)
+        elif joint >= Z_NOTED:
+            unsure += cycle
+            weakest_unsure = min(weakest_unsure, joint)
+    why = ''
+    if unsure:
+        seen = routing_text([(names[on[c]], names[on[assigned[c]]]) for c in unsure])
+        why = (f'{seen}, but by as little as {weakest_unsure:.1f} noise sds, or with a move short of '
+               f'{Z_NOTED:g} (a routing is named from {Z_NAMED:g}); record the sweeps with one fan off again with more samples, '
+               f'or check those leads by hand')
+    if named:
+        drives = tuple((names[on[c]], names[on[assigned[c]]]) for c in sorted(named))
+        return WiringCheck(True, drives, float('nan'), float('nan'), why, method='located',
+                           evidence=weakest_named)
+    if unsure:
+        return WiringCheck(True, (), float('nan'), float('nan'), why, method='located',
+                           evidence=weakest_unsure)
+    others = score.copy()
+    np.fill_diagonal(others, -np.inf)
+    nearest = max(margin(c, int(np.argmax(others[c]))) for c in range(n))
+    return WiringCheck(True, (), float('nan'), float('nan'), method='located', evidence=nearest)

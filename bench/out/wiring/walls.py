@@ -30,4 +30,4 @@ for seed in (0, 1):
         v = check_wiring(data, fans)
         dt = time.process_time() - t0
         ok = set(v.drives) == set(drives)
-        print(f'seed {seed} moved {len(drives)}: named {len(v.drives)} exact {ok} rmse {v.rmse_as_wired:.3f} -> {v.rmse_swapped:.3f} ({dt:.2f} s) {v.why}', flush=True)
+        print(f'seed {seed} moved {len(drives)}: named {len(v.drives)} exact {ok} rmse {v.rmse_as_wired:.3f} -> {v.rmse_swapped:.3f} {v.method} {v.evidence:.1f} ({dt:.2f} s) {v.why}', flush=True)

@@ -123,3 +123,91 @@ def test_a_wall_above_the_exhaustive_search_is_searched_exchange_by_exchange(dri
     verdict = check_wiring(from_sim(tunnel, design.commands, n_samples=1500), fans)
     assert verdict.checked and set(verdict.drives) == set(drives)
     assert (verdict.rmse_swapped < MARGIN * verdict.rmse_as_wired) == bool(drives)
+
+
+def _single_off_sweeps(drives=(), fans=None, sim=None, n_samples=None):
+    """The single-off design (every fan at the middle, then each off in turn) recorded on the
+    simulated tunnel, or ``sim`` with ``fans``, its commands routed as ``drives`` says."""
+    setup = Setup.load()
+    fans = fans or setup.geometry.fans
+    sim = sim or setup.make_sim(seed=0)
+    tunnel = _Miswired(sim, _routing(fans, drives)) if drives else sim
+    design = make_design('single-off', fans, setup.shaping.u_min, setup.shaping.u_max)
+    return from_sim(tunnel, design.commands, n_samples=n_samples or setup.shaping.samples_per_sweep)
+
+
+@pytest.mark.parametrize('drives', [
+    (),
+    (('HM1', 'LM3'), ('LM3', 'HM1')),
+    (('LM1', 'HM1'), ('HM1', 'LM2'), ('LM2', 'LM1')),
+    (('HM1', 'LM1'), ('LM2', 'HM1'), ('HM2', 'LM2'), ('LM3', 'HM2'), ('HM3', 'LM3'), ('LM1', 'HM3'))])
+def test_single_off_sweeps_place_each_command_at_the_fan_it_drives(drives):
+    """Each command switched off leaves its gap where the fan it drives blows: the check locates
+    the gaps, names the routing when it is not as configured and passes it when it is."""
+    from wind_shaper.workbench.wiring import Z_NAMED, is_single_off
+    fans = Setup.load().geometry.fans
+    data = _single_off_sweeps(drives)
+    assert is_single_off(data, fans)
+    verdict = check_wiring(data, fans)
+    assert verdict.checked and verdict.method == 'located' and set(verdict.drives) == set(drives)
+    if drives:
+        assert verdict.evidence >= Z_NAMED and verdict.text.startswith('WIRING')
+        assert all(a in verdict.text and b in verdict.text for a, b in drives)
+    else:
+        assert verdict.evidence < 0 and 'as configured' in verdict.text
+    assert verdict.to_json()['method'] == 'located' and verdict.to_json()['rmse_as_wired_N'] is None
+
+
+def _wall(side, pitch):
+    from wind_shaper.core.geometry import FanArray, TunnelGeometry, rect_key_points
+    from wind_shaper.sim import SimulatedTunnel
+    fans = FanArray.grid(side, side, pitch)
+    half = pitch * side / 2
+    geometry = TunnelGeometry(fans, rect_key_points(half, half, 12, 12), wall_radius=half + 0.1,
+                              sweep_radius=float(np.sqrt(2) * half) + 0.01, extra={'wall_shape': 'square'})
+    return fans, SimulatedTunnel(geometry, seed=0)
+
+
+@pytest.mark.parametrize('moved', [0, 6])
+def test_a_six_by_six_wall_is_checked_on_single_off_sweeps(moved):
+    """Thirty-six fans 0.1 m apart: the fits of routings, held to the prior's fixed footprints,
+    named none of these misroutings; the gaps of the single-off sweeps name the first row one
+    output along and pass the wall wired as configured."""
+    fans, sim = _wall(6, 0.1)
+    names = fans.names
+    drives = tuple((names[k], names[(k + 1) % 6]) for k in range(moved))
+    verdict = check_wiring(_single_off_sweeps(drives, fans, sim, n_samples=1500), fans)
+    assert verdict.checked and verdict.method == 'located' and set(verdict.drives) == set(drives)
+    assert ('as configured' in verdict.text) == (not drives)
+
+
+def test_a_gap_that_fits_another_fan_only_weakly_is_not_named(monkeypatch):
+    """Below the evidence it asks for, the check names no routing but says which commands look
+    moved, by how much, and what to do."""
+    import wind_shaper.workbench.wiring as wiring
+    monkeypatch.setattr(wiring, 'Z_NAMED', 1e6)
+    verdict = check_wiring(_single_off_sweeps((('HM1', 'LM3'), ('LM3', 'HM1'))), Setup.load().geometry.fans)
+    assert verdict.checked and not verdict.drives and verdict.evidence > 3
+    assert 'not settled' in verdict.text and 'HM1' in verdict.text and 'LM3' in verdict.text
+    assert 'again' in verdict.text
+
+
+def test_single_off_sweeps_missing_a_fan_are_checked_by_the_fits():
+    """Without a sweep for every fan the gaps cannot all be placed: the routings' fits judge."""
+    from wind_shaper.workbench.wiring import is_single_off
+    fans = Setup.load().geometry.fans
+    data = _single_off_sweeps()
+    short = replace(data, sweeps=data.sweeps[:-1], labels=data.labels[:-1])
+    assert not is_single_off(short, fans)
+    assert check_wiring(short, fans).method == 'fit'
+
+
+def test_calibrate_on_single_off_sweeps_gives_the_wiring_and_no_model(tmp_path, capsys):
+    """`calibrate --sim --design single-off`: the commands hardly vary, so no prior is fitted;
+    the wiring verdict is printed and the exit status says whether it is as configured."""
+    from wind_shaper.cli.main import main
+    out = tmp_path / 'model.yaml'
+    assert main(['calibrate', '--sim', '--design', 'single-off', '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert 'as configured' in printed and 'no model file written' in printed and 'lhs:6+level' in printed
+    assert not out.exists()
