@@ -25,8 +25,9 @@ matched filter: the weighted covariance of the gap with the footprint over the c
 passed, per unit of the footprint's norm), the commands are assigned to the fans by those
 scores (``linear_sum_assignment``), and each cycle of commands moved round is named when
 their gaps together score higher at the fans they are assigned to than at their own by
-``Z_NAMED`` times the noise of that difference (the samples' scatter within a cell, pooled),
-each move by ``Z_NOTED``; a cycle with less evidence is reported as not settled.
+``Z_NAMED`` times the noise of that difference (the samples' scatter within a cell, pooled;
+more on large rigs, ``FAMILY_RISK``), each move by ``Z_NOTED``; a cycle with less evidence is
+reported as not settled.
 """
 from __future__ import annotations
 
@@ -35,10 +36,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.stats import norm
 
 from ..model.modelfile import routing_text
 
-__all__ = ['WiringCheck', 'check_wiring', 'is_single_off', 'MARGIN', 'STEP', 'EXHAUSTIVE', 'MAX_FANS', 'Z_NAMED', 'Z_NOTED']
+__all__ = ['WiringCheck', 'check_wiring', 'is_single_off', 'MARGIN', 'STEP', 'EXHAUSTIVE', 'MAX_FANS', 'Z_NAMED',
+           'Z_NOTED', 'FAMILY_RISK']
 
 #: A routing is reported when it leaves at most this share of the RMSE as wired.
 MARGIN = 0.7
@@ -51,9 +54,11 @@ STEP = 0.9
 MAX_FANS = 40
 #: In single-off sweeps a cycle of moved commands is named when their gaps together fit the fans
 #: they are assigned to better than their own by at least this many noise sds (and each move by
-#: Z_NOTED); measured on the bench's tunnels: every misrouting at 13 or more, no alternative to a
-#: correct wiring above 0.2.
+#: Z_NOTED); measured on the bench's tunnels: every misrouting at 42 or more, no alternative to a
+#: correct wiring above 0.2. On larger rigs the bar rises with the number of commands, so that
+#: the chance of naming a cycle from noise anywhere stays near FAMILY_RISK.
 Z_NAMED = 3.0
+FAMILY_RISK = 0.01
 #: A cycle with less joint evidence than this (noise sds) is the noise's and not reported; from it
 #: up to a named cycle it is reported as not settled.
 Z_NOTED = 1.0
@@ -304,6 +309,7 @@ def _located_check(data, fans, on, level: int, singles: dict, cell: float) -> Wi
     # every score has the same noise (sigma), so the assignment that fits the gaps best overall
     # is the one with the largest summed score
     _, assigned = linear_sum_assignment(-score)
+    bar = max(Z_NAMED, float(norm.isf(FAMILY_RISK / n)))
     named, unsure, weakest_named, weakest_unsure = [], [], np.inf, np.inf
     for cycle in _cycles(assigned):
         # A routing moves commands round in cycles. A cycle is judged on all its moves together
@@ -313,7 +319,7 @@ def _located_check(data, fans, on, level: int, singles: dict, cell: float) -> Wi
         gains = [gain(c, int(assigned[c])) for c in cycle]
         joint = sum(g for g, _ in gains) / np.sqrt(sum(sd ** 2 for _, sd in gains))
         weakest = min(g / sd for g, sd in gains)
-        if joint >= Z_NAMED and weakest >= Z_NOTED:
+        if joint >= bar and weakest >= Z_NOTED:
             named += cycle
             weakest_named = min(weakest_named, joint)
         elif joint >= Z_NOTED:
@@ -323,7 +329,7 @@ def _located_check(data, fans, on, level: int, singles: dict, cell: float) -> Wi
     if unsure:
         seen = routing_text([(names[on[c]], names[on[assigned[c]]]) for c in unsure])
         why = (f'{seen}, but by as little as {weakest_unsure:.1f} noise sds, or with a move short of '
-               f'{Z_NOTED:g} (a routing is named from {Z_NAMED:g}); record the sweeps with one fan off again with more samples, '
+               f'{Z_NOTED:g} (a routing is named from {bar:.1f} on {n} fans); record the sweeps with one fan off again with more samples, '
                f'or check those leads by hand')
     if named:
         drives = tuple((names[on[c]], names[on[assigned[c]]]) for c in sorted(named))
