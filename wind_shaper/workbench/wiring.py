@@ -242,14 +242,14 @@ def _single_off_sweeps(data, on) -> tuple[int, dict] | None:
     U = np.array([np.asarray(s.pwm, float) for s in data.sweeps])
     if U.ndim != 2 or not len(U):
         return None
-    level = next((i for i, u in enumerate(U[:, on]) if np.all(u > 0) and np.ptp(u) < 1e-9), None)
+    level = next((i for i, u in enumerate(U[:, on]) if np.all(u > 0) and np.ptp(u) < 1e-6), None)
     if level is None:
         return None
     u_level = U[level, on[0]]
     singles: dict[int, int] = {}
     for i, u in enumerate(U[:, on]):
         off = np.flatnonzero(u <= 0)
-        if len(off) == 1 and np.all(np.abs(np.delete(u, off) - u_level) < 1e-9):
+        if len(off) == 1 and np.all(np.abs(np.delete(u, off) - u_level) < 1e-6):
             singles.setdefault(int(on[off[0]]), i)
     return (level, singles) if len(singles) == len(on) else None
 
