@@ -2,7 +2,8 @@
 the simulated tunnel; MAVLink, Net F/T RDT and mocap over loopback; nothing in-process):
 collect it with the coordinator killed in the middle, calibrate a prior from it, load that into
 the running coordinator, diagnose the hidden effect from the experiment folder and from the bag
-alike, add it, load the improved model and iterate with it; and the guided held-plate batch."""
+alike, add it, load the improved model and iterate with it; the guided held-plate batch; and the
+wiring checked from sweeps with one fan off at a time."""
 import json
 import os
 import re
@@ -238,3 +239,19 @@ def test_the_guided_held_batch_resumes_after_its_command_dies_and_fits_the_prior
     assert len({x['label'] for x in lines}) == total and all(x['outcome'] == 'recorded' for x in lines)
     assert all(x['n'] >= 15 and abs(x['force_std']) < 0.5 for x in lines)
     assert 'RMSE' in out and (root / 'held.yaml').is_file()
+
+
+@pytest.mark.timeout(400)
+def test_single_off_sweeps_collected_through_the_graph_check_the_wiring(graph):
+    """The single-off design (every fan at the middle, then each off in turn) collected through
+    the graph (the commands over MAVLink, the force over Net F/T, the plate from the mocap
+    relay) and given to `calibrate`: the wiring is as configured, and no model file is written,
+    since such sweeps cannot tell the fans' curves apart."""
+    root, env, *_ = graph
+    code, out = cli(root, env, 'collect', '--design', 'single-off', '--out', 'fan-check',
+                    '--duration', str(SWEEP_S), '--wait', '30', timeout_s=360)
+    assert code == 0, out
+    code, out = cli(root, env, 'calibrate', '--data', 'runs/fan-check', '--out', 'fan-check.yaml')
+    assert code == 0, out
+    assert 'wiring: as configured' in out and 'no model file written' in out, out
+    assert not (root / 'fan-check.yaml').exists()
