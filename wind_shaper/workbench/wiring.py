@@ -26,8 +26,8 @@ passed, per unit of the footprint's norm), the commands are assigned to the fans
 scores (``linear_sum_assignment``), and each cycle of commands moved round is named when
 their gaps together score higher at the fans they are assigned to than at their own by
 ``Z_NAMED`` times the noise of that difference (the samples' scatter within a cell, pooled;
-more on large rigs, ``FAMILY_RISK``), each move by ``Z_NOTED``; a cycle with less evidence is
-reported as not settled.
+more on large rigs, ``FAMILY_RISK``), each move by ``Z_NOTED``; a cycle with the joint evidence
+but a weaker move is reported as not settled, one without it taken for noise.
 """
 from __future__ import annotations
 
@@ -59,8 +59,9 @@ MAX_FANS = 40
 #: the chance of naming a cycle from noise anywhere stays near FAMILY_RISK.
 Z_NAMED = 3.0
 FAMILY_RISK = 0.01
-#: A cycle with less joint evidence than this (noise sds) is the noise's and not reported; from it
-#: up to a named cycle it is reported as not settled.
+#: A cycle with the joint evidence is named only when each of its moves has this much too (noise
+#: sds); otherwise it is reported as not settled (on a wall, a corner fan's gap, which the wall's
+#: edge cuts, may be the weak link). A cycle short of the joint evidence is taken for noise.
 Z_NOTED = 1.0
 
 
@@ -322,14 +323,14 @@ def _located_check(data, fans, on, level: int, singles: dict, cell: float) -> Wi
         if joint >= bar and weakest >= Z_NOTED:
             named += cycle
             weakest_named = min(weakest_named, joint)
-        elif joint >= Z_NOTED:
+        elif joint >= bar:   # a real cycle with a weak link; below the bar, noise
             unsure += cycle
             weakest_unsure = min(weakest_unsure, joint)
     why = ''
     if unsure:
         seen = routing_text([(names[on[c]], names[on[assigned[c]]]) for c in unsure])
-        why = (f'{seen}, but by as little as {weakest_unsure:.1f} noise sds, or with a move short of '
-               f'{Z_NOTED:g} (a routing is named from {bar:.1f} on {n} fans); record the sweeps with one fan off again with more samples, '
+        why = (f'{seen}, by {weakest_unsure:.1f} noise sds together, but with a move short of '
+               f'{Z_NOTED:g}; record the sweeps with one fan off again with more samples, '
                f'or check those leads by hand')
     if named:
         drives = tuple((names[on[c]], names[on[assigned[c]]]) for c in sorted(named))

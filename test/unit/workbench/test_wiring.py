@@ -182,10 +182,10 @@ def test_a_six_by_six_wall_is_checked_on_single_off_sweeps(moved):
 
 
 def test_a_gap_that_fits_another_fan_only_weakly_is_not_named(monkeypatch):
-    """Below the evidence it asks for, the check names no routing but says which commands look
-    moved, by how much, and what to do."""
+    """A cycle with the joint evidence but a move short of what naming asks: the check names no
+    routing but says which commands look moved, by how much, and what to do."""
     import wind_shaper.workbench.wiring as wiring
-    monkeypatch.setattr(wiring, 'Z_NAMED', 1e6)
+    monkeypatch.setattr(wiring, 'Z_NOTED', 1e6)   # every move short of what naming asks
     verdict = check_wiring(_single_off_sweeps((('HM1', 'LM3'), ('LM3', 'HM1'))), Setup.load().geometry.fans)
     assert verdict.checked and not verdict.drives and verdict.evidence > 3
     assert 'not settled' in verdict.text and 'HM1' in verdict.text and 'LM3' in verdict.text
