@@ -220,6 +220,7 @@ class SampleClock:
         self._last_arrival = None
         self._clock_difference = None   # stamp_in: the other clock minus the steady one [s]
         self._step_seen = []
+        self._last_out = None           # stamp_in: the last stamp given [s]
 
     def stamp(self, rdt_sequence: int, arrival: float) -> float:
         """Sample time [s] of record ``rdt_sequence`` that arrived at ``arrival`` [s]."""
@@ -261,7 +262,9 @@ class SampleClock:
         add to it) and follows a change of more than ``STEP_S`` only once ``STEP_CONFIRM``
         arrivals in a row show it: a thread preempted between the two readings moves one
         reading by milliseconds, which at 1 kHz would put stamps out of order."""
+        base = self.stamp(rdt_sequence, arrival_steady)   # may start the clock over (reset)
         difference = clock_at_arrival - arrival_steady
+        stepped = False
         if self._clock_difference is None:
             self._clock_difference = difference
         elif abs(difference - self._clock_difference) > self.STEP_S:
@@ -269,8 +272,18 @@ class SampleClock:
             if len(self._step_seen) >= self.STEP_CONFIRM:
                 self._clock_difference = float(sorted(self._step_seen)[len(self._step_seen) // 2])
                 self._step_seen = []
+                stepped = True
         else:
             self._step_seen = []
             # a reading delayed between the two clocks can only make the difference larger
             self._clock_difference = min(self._clock_difference, difference)
-        return self.stamp(rdt_sequence, arrival_steady) + self._clock_difference
+        out = base + self._clock_difference
+        # While the stream starts, the first records may have waited in a busy host longer than
+        # the later ones: a less-delayed record lowers the anchor (or the clocks' difference), and
+        # its stamp would fall before those already given, by the correction. Consumers pair and
+        # interpolate in stamp order, so the order is held (1 us apart) until the stamps catch
+        # up; a step of the other clock itself is followed.
+        if self._last_out is not None and not stepped and out <= self._last_out:
+            out = self._last_out + 1e-6
+        self._last_out = out
+        return out

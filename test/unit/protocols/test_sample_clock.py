@@ -88,3 +88,38 @@ def test_stamps_follow_a_step_of_the_system_clock_at_once():
     old_stamps = np.array([old.stamp(i, float(t + d + off))
                            for i, t, d, off in zip(range(n), steady, lag, system_minus_steady)])
     assert np.all((steady + system_minus_steady - old_stamps)[3100:5900] > 0.2)
+
+
+def test_stamps_stay_in_order_while_the_anchor_settles():
+    """The first records of a stream waited 3-6 ms in a busy host, the later ones 0.5 ms: each
+    less-delayed record lowers the anchor, and stamped as they came, samples fell before the ones
+    already sent. The stamps given stay in order (and within the corrections of the true times);
+    a step of the system clock back by half a second is still followed at once."""
+    rate = 1000.0
+    n = 400
+    steady = 20.0 + np.arange(n) / rate
+    lag = np.where(np.arange(n) < 20, 0.006 - 0.00015 * np.arange(n), 0.0005)
+    system_minus_steady = np.full(n, 1.7e9)
+    system_minus_steady[300:] -= 0.5
+    clock = SampleClock(rate)
+    stamps = np.array([clock.stamp_in(i, float(t + d), float(t + d + off))
+                       for i, t, d, off in zip(range(n), steady, lag, system_minus_steady)])
+    raw = SampleClock(rate)
+    unheld = np.array([raw.stamp(i, float(t + d)) for i, t, d in zip(range(n), steady, lag)])
+    assert np.any(np.diff(unheld[:300]) < 0), 'the case does not lower the anchor'
+    assert np.all(np.diff(stamps[:300]) > 0) and np.all(np.diff(stamps[305:]) > 0)
+    err = stamps - (steady + system_minus_steady)
+    followed = np.r_[:300, 305:n]            # the step back is confirmed within a few records
+    assert np.all(np.abs(err[followed]) < 0.007), np.abs(err[followed]).max()
+    assert np.all(np.abs(err[np.r_[40:300, 305:n]]) < 0.001), np.abs(err[40:300]).max()
+    assert stamps[305] < stamps[299] - 0.4     # the clock's own step back, followed
+
+
+def test_stamps_in_another_clock_start_over_with_a_restarted_sensor():
+    """The sensor restarts and counts from 5 again: the clock starts over, and so does the
+    clocks' difference it stamps with (this raised a TypeError, losing the sample)."""
+    clock = SampleClock(1000.0)
+    for n in range(3000):
+        clock.stamp_in(n, 100.0 + n / 1000.0, 1.7e9 + 100.0 + n / 1000.0)
+    t = clock.stamp_in(5, 200.0, 1.7e9 + 200.0)
+    assert clock.restarts == 1 and abs(t - (1.7e9 + 200.0)) < 1e-6
