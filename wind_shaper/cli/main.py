@@ -155,9 +155,9 @@ def _calibrate_on_sim_from_design(setup, args) -> int:
 
 def _report_wiring_only(only) -> int:
     """Sweeps of the single-off design: the wiring check's verdict, no model file. 0 when the
-    wiring is as configured, 1 when a misrouting is named or not settled."""
+    wiring is as configured, 1 when a misrouting is named, not settled, or could not be judged."""
     verdict = only.wiring
-    doubt = verdict.checked and (verdict.swapped is not None or bool(verdict.why))
+    doubt = not verdict.checked or verdict.swapped is not None or bool(verdict.why)
     print(verdict.text, file=sys.stderr if doubt else sys.stdout)
     print(f'no model file written: {only}')
     return 1 if doubt else 0
