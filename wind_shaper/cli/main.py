@@ -249,7 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument('--data', type=Path, default=None, metavar='RUN_OR_BAG',
                    help='sweeps at varied commands: an experiment folder or bag of `wind-shaper '
-                        'collect`, a run folder or a shape report')
+                        'collect`, a run folder or a shape report (sweeps of the single-off design '
+                        'check the wiring only, and write no model file)')
     p.add_argument('--model', type=Path, default=None,
                    help='with --data or --sim --design: the model whose free parameters are fitted '
                         '(default: the paper\'s prior, and where the whole field lands if that '
